@@ -1,0 +1,234 @@
+// Shared by every kernel: the structs the host writes (mirrored in src/gpu/layout.rs, checked by
+// the layout probe test), the scene bindings (group 0), block accessors and the robust
+// ray/box and ray/triangle tests. The host prepends this file to each kernel.
+
+const NONE: u32 = 0xffffffffu;
+// The initial tmax: finite, because WGSL gives no guarantees for infinities.
+const FAR: f32 = 3.0e38;
+const TILE: u32 = 8u;
+const WORKGROUP: u32 = 64u;
+
+// RayState.status
+const LIVE: u32 = 0u;
+const DONE: u32 = 1u;
+const OUTSIDE: u32 = 2u;   // pixel outside the image (partial edge tile) or an invalid ray
+const OVERFLOW: u32 = 3u;  // traversal stack overflow: reported to the host as an error
+
+// Mirrors gpu::layout::Params.
+struct Params {
+    origin: vec4<f32>,
+    forward: vec4<f32>,
+    right: vec4<f32>,       // camera right * tan(view_angle / 2) * aspect
+    up: vec4<f32>,          // camera up * tan(view_angle / 2)
+    background: vec4<f32>,
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    first_tile: u32,
+    batch_rays: u32,
+    step_budget: u32,
+    stack_size: u32,
+    mesh_count: u32,
+    node_blocks: u32,
+    rows_per_layer: u32,
+    nodes_per_block: u32,
+    tris_per_block: u32,
+    id_word: u32,
+    flags: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+// Mirrors gpu::layout::RayState: one per ray of a batch, kept between trace dispatches.
+struct RayState {
+    ox: f32, oy: f32, oz: f32,
+    t: f32,       // closest hit so far (the ray's tmax)
+    dx: f32, dy: f32, dz: f32,
+    hit: u32,     // triangle index (BVH order) of the closest hit, or NONE
+    node: u32,    // node to visit next, or NONE to pop the stack
+    sp: u32,      // stack entries in use
+    status: u32,
+    steps: u32,   // traversal steps taken so far
+}
+
+// Mirrors gpu::layout::MeshInfo.
+struct MeshInfo {
+    color: vec4<f32>,
+    first_prim: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+// Mirrors gpu::layout::Pixel: what the shade kernel writes for each ray.
+struct Pixel {
+    r: f32, g: f32, b: f32,
+    // Hit distance along the normalized ray as f32 bits; +inf on a miss (written as bits since
+    // WGSL has no infinity literal).
+    depth_bits: u32,
+    id: u32,      // primitive id; NONE on a miss
+    nx: f32, ny: f32, nz: f32,
+}
+
+// Mirrors gpu::layout::Counter: a live-ray count followed by indirect dispatch arguments.
+struct Counter {
+    count: atomic<u32>,
+    x: u32,
+    y: u32,
+    z: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+// Every block as one row of Rgba32Uint texels: block k is row k % rows_per_layer of layer
+// k / rows_per_layer (blocks.rs documents the byte layout).
+@group(0) @binding(1) var blocks: texture_2d_array<u32>;
+@group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
+
+fn texel(block: u32, t: u32) -> vec4<u32> {
+    let layer = block / params.rows_per_layer;
+    let row = block - layer * params.rows_per_layer;
+    return textureLoad(blocks, vec2<u32>(t, row), layer, 0);
+}
+
+struct Node {
+    lo: vec3<f32>,
+    hi: vec3<f32>,
+    index: u32,
+    count: u32,
+}
+
+fn load_node(i: u32) -> Node {
+    let block = i / params.nodes_per_block;
+    let slot = i - block * params.nodes_per_block;
+    let a = texel(block, slot * 2u);
+    let b = texel(block, slot * 2u + 1u);
+    return Node(bitcast<vec3<f32>>(a.xyz), vec3<f32>(bitcast<f32>(a.w), bitcast<vec2<f32>>(b.xy)), b.z, b.w);
+}
+
+fn word(block: u32, w: u32) -> u32 {
+    let t = texel(block, w / 4u);
+    let c = w % 4u;
+    return select(select(t.w, t.z, c == 2u), select(t.y, t.x, c == 0u), c < 2u);
+}
+
+struct Tri {
+    v0: vec3<f32>,
+    v1: vec3<f32>,
+    v2: vec3<f32>,
+}
+
+fn tri_block(t: u32) -> vec2<u32> {
+    let b = t / params.tris_per_block;
+    return vec2<u32>(params.node_blocks + b, t - b * params.tris_per_block);
+}
+
+fn load_tri(t: u32) -> Tri {
+    let bs = tri_block(t);
+    let w = bs.y * 9u;
+    var v: array<f32, 9>;
+    for (var i = 0u; i < 9u; i++) {
+        v[i] = bitcast<f32>(word(bs.x, w + i));
+    }
+    return Tri(vec3(v[0], v[1], v[2]), vec3(v[3], v[4], v[5]), vec3(v[6], v[7], v[8]));
+}
+
+fn load_prim_id(t: u32) -> u32 {
+    let bs = tri_block(t);
+    return word(bs.x, params.id_word + bs.y);
+}
+
+// Reciprocal of a direction, clamped so that no component is infinite: WGSL does not promise
+// IEEE behaviour for 1/0, and a huge finite value gives the same slab answer without NaNs.
+fn safe_inverse(d: vec3<f32>) -> vec3<f32> {
+    let tiny = 1e-20;
+    let s = select(vec3(-tiny), vec3(tiny), d >= vec3(0.0));
+    let c = select(d, s, abs(d) < vec3(tiny));
+    return 1.0 / c;
+}
+
+// Conservative slab test (Ize, JCGT 2013): the exit distance is widened to cover the rounding of
+// the subtraction, the 2.5-ulp WGSL division and the product. Returns the entry distance, or -1.
+const EXIT_WIDEN: f32 = 1.0000024;
+fn box_entry(lo: vec3<f32>, hi: vec3<f32>, org: vec3<f32>, inv: vec3<f32>, tmax: f32) -> f32 {
+    let t0 = (lo - org) * inv;
+    let t1 = (hi - org) * inv;
+    let tn = min(t0, t1);
+    let tf = max(t0, t1);
+    let enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
+    let exit = min(min(tf.x, tf.y), tf.z) * EXIT_WIDEN;
+    return select(-1.0, enter, enter <= min(exit, tmax));
+}
+
+// Per-ray constants of the watertight test (Woop, Benthin & Wald, JCGT 2013).
+struct Shear {
+    k: vec3<u32>,  // kx, ky, kz
+    s: vec3<f32>,  // Sx, Sy, Sz
+}
+
+fn max_axis(v: vec3<f32>) -> u32 {
+    let a = abs(v);
+    return select(select(2u, 1u, a.y >= a.z), select(2u, 0u, a.x >= a.z), a.x >= a.y);
+}
+
+fn make_shear(d: vec3<f32>) -> Shear {
+    let kz = max_axis(d);
+    var kx = (kz + 1u) % 3u;
+    var ky = (kx + 1u) % 3u;
+    if d[kz] < 0.0 {
+        let t = kx;
+        kx = ky;
+        ky = t;
+    }
+    let sz = 1.0 / d[kz];
+    return Shear(vec3(kx, ky, kz), vec3(d[kx] * sz, d[ky] * sz, sz));
+}
+
+// 2D edge function of the sheared vertices a, b. Evaluated in a canonical vertex order so that two
+// triangles sharing an edge compute exactly the negated value even when the compiler contracts
+// to fused multiply-adds: that keeps the test watertight.
+fn edge(a: vec2<f32>, b: vec2<f32>) -> f32 {
+    let swap = a.x > b.x || (a.x == b.x && a.y > b.y);
+    let p = select(a, b, swap);
+    let q = select(b, a, swap);
+    let e = p.x * q.y - p.y * q.x;
+    return select(e, -e, swap);
+}
+
+// Returns the hit distance in (0, tmax), or -1. Degenerate triangles (det == 0) never hit.
+fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
+    let a = tri.v0 - org;
+    let b = tri.v1 - org;
+    let c = tri.v2 - org;
+    let a2 = vec2(a[sh.k.x] - sh.s.x * a[sh.k.z], a[sh.k.y] - sh.s.y * a[sh.k.z]);
+    let b2 = vec2(b[sh.k.x] - sh.s.x * b[sh.k.z], b[sh.k.y] - sh.s.y * b[sh.k.z]);
+    let c2 = vec2(c[sh.k.x] - sh.s.x * c[sh.k.z], c[sh.k.y] - sh.s.y * c[sh.k.z]);
+    let u = edge(c2, b2);
+    let v = edge(a2, c2);
+    let w = edge(b2, a2);
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return -1.0;
+    }
+    let det = u + v + w;
+    if det == 0.0 {
+        return -1.0;
+    }
+    let tt = u * (sh.s.z * a[sh.k.z]) + v * (sh.s.z * b[sh.k.z]) + w * (sh.s.z * c[sh.k.z]);
+    // Sign-aware: the hit is in front when tt and det agree in sign.
+    let stt = select(tt, -tt, det < 0.0);
+    if stt <= 0.0 {
+        return -1.0;
+    }
+    let t = stt / abs(det);
+    if t <= 0.0 || t >= tmax {
+        return -1.0;
+    }
+    return t;
+}
+
+fn ray_origin(r: RayState) -> vec3<f32> {
+    return vec3(r.ox, r.oy, r.oz);
+}
+
+fn ray_dir(r: RayState) -> vec3<f32> {
+    return vec3(r.dx, r.dy, r.dz);
+}

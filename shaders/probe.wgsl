@@ -1,0 +1,63 @@
+// Layout probe (tests only): one invocation reads every member of every host-written struct
+// through the same accessors the kernels use and writes it out as raw words, in declaration
+// order, so the host can compare each member with what it wrote. `params.pad0` nodes,
+// `params.pad1` triangles, two ray states and `params.mesh_count` meshes are probed.
+
+@group(1) @binding(0) var<storage, read> probe_rays: array<RayState>;
+@group(1) @binding(1) var<storage, read_write> out: array<u32>;
+
+var<private> at: u32 = 0u;
+
+fn put(w: u32) {
+    out[at] = w;
+    at += 1u;
+}
+
+fn putf(v: f32) {
+    put(bitcast<u32>(v));
+}
+
+fn put4(v: vec4<f32>) {
+    putf(v.x);
+    putf(v.y);
+    putf(v.z);
+    putf(v.w);
+}
+
+@compute @workgroup_size(1)
+fn main() {
+    let p = params;
+    put4(p.origin);
+    put4(p.forward);
+    put4(p.right);
+    put4(p.up);
+    put4(p.background);
+    put(p.width); put(p.height); put(p.tiles_x); put(p.first_tile);
+    put(p.batch_rays); put(p.step_budget); put(p.stack_size); put(p.mesh_count);
+    put(p.node_blocks); put(p.rows_per_layer); put(p.nodes_per_block); put(p.tris_per_block);
+    put(p.id_word); put(p.flags); put(p.pad0); put(p.pad1);
+    for (var i = 0u; i < p.pad0; i++) {
+        let n = load_node(i);
+        putf(n.lo.x); putf(n.lo.y); putf(n.lo.z);
+        putf(n.hi.x); putf(n.hi.y); putf(n.hi.z);
+        put(n.index); put(n.count);
+    }
+    for (var i = 0u; i < p.pad1; i++) {
+        let t = load_tri(i);
+        putf(t.v0.x); putf(t.v0.y); putf(t.v0.z);
+        putf(t.v1.x); putf(t.v1.y); putf(t.v1.z);
+        putf(t.v2.x); putf(t.v2.y); putf(t.v2.z);
+        put(load_prim_id(i));
+    }
+    for (var i = 0u; i < 2u; i++) {
+        let r = probe_rays[i];
+        putf(r.ox); putf(r.oy); putf(r.oz); putf(r.t);
+        putf(r.dx); putf(r.dy); putf(r.dz); put(r.hit);
+        put(r.node); put(r.sp); put(r.status); put(r.steps);
+    }
+    for (var i = 0u; i < p.mesh_count; i++) {
+        let m = meshes[i];
+        put4(m.color);
+        put(m.first_prim); put(m.pad0); put(m.pad1); put(m.pad2);
+    }
+}

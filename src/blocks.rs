@@ -1,0 +1,178 @@
+//! Fixed-size blocks: the unit of storage, ownership and caching (DESIGN.md section 2).
+//!
+//! One id space holds all blocks: node blocks first (`0..node_blocks`), then triangle blocks. A
+//! block is `block_bytes` long, seen by the GPU as one row of `block_bytes / 16` `Rgba32Uint`
+//! texels. Byte layouts (little-endian u32 words):
+//!
+//! - node block: `nodes_per_block = block_bytes / 32` nodes of 8 words (`bvh::Node`).
+//! - triangle block: `tris_per_block = block_bytes / 40` triangles of 9 words (v0, v1, v2 as f32
+//!   xyz) from word 0, then their primitive ids (one u32 each) from word `9 * tris_per_block`;
+//!   zeros after. Keeping the id in the block costs 4 bytes a triangle and means the block a ray
+//!   hits is all it needs to report the id.
+
+use crate::bvh::{Bvh, Node};
+use crate::error::{Error, Result};
+
+pub const DEFAULT_BLOCK_BYTES: u32 = 8192;
+pub const TEXEL_BYTES: u32 = 16;
+const NODE_WORDS: u32 = 8;
+const TRI_WORDS: u32 = 9;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Format {
+    pub block_bytes: u32,
+}
+
+impl Format {
+    pub fn new(block_bytes: u32) -> Result<Format> {
+        // 64 bytes is one sibling pair; the texture row width caps the top.
+        if !(64..=256 * 1024).contains(&block_bytes) || block_bytes % 64 != 0 {
+            return Err(Error::Invalid(format!(
+                "block size {block_bytes} bytes: must be a multiple of 64 from 64 to 262144"
+            )));
+        }
+        Ok(Format { block_bytes })
+    }
+    pub fn words(&self) -> u32 {
+        self.block_bytes / 4
+    }
+    pub fn texels(&self) -> u32 {
+        self.block_bytes / TEXEL_BYTES
+    }
+    pub fn nodes_per_block(&self) -> u32 {
+        self.block_bytes / (NODE_WORDS * 4)
+    }
+    pub fn tris_per_block(&self) -> u32 {
+        self.block_bytes / ((TRI_WORDS + 1) * 4)
+    }
+    /// Word offset of the primitive ids in a triangle block.
+    pub fn id_word(&self) -> u32 {
+        TRI_WORDS * self.tris_per_block()
+    }
+}
+
+impl Default for Format {
+    fn default() -> Self {
+        Format {
+            block_bytes: DEFAULT_BLOCK_BYTES,
+        }
+    }
+}
+
+/// All blocks of a model, in block-id order.
+#[derive(Clone, Debug)]
+pub struct Blocks {
+    pub format: Format,
+    pub node_blocks: u32,
+    pub tri_blocks: u32,
+    pub words: Vec<u32>,
+}
+
+impl Blocks {
+    pub fn pack(bvh: &Bvh, format: Format) -> Result<Blocks> {
+        let npb = format.nodes_per_block() as usize;
+        let tpb = format.tris_per_block() as usize;
+        let node_blocks = bvh.nodes.len().div_ceil(npb);
+        let tri_blocks = bvh.triangles.len().div_ceil(tpb);
+        let total = node_blocks as u64 + tri_blocks as u64;
+        if total > u64::from(u32::MAX) {
+            return Err(Error::Invalid(format!(
+                "model needs {total} blocks, more than 2^32"
+            )));
+        }
+        let bw = format.words() as usize;
+        let mut words = vec![0u32; (node_blocks + tri_blocks) * bw];
+        let (node_words, tri_words) = words.split_at_mut(node_blocks * bw);
+        for (chunk, block) in bvh.nodes.chunks(npb).zip(node_words.chunks_mut(bw)) {
+            let bytes: &[u32] = bytemuck::cast_slice(chunk);
+            block[..bytes.len()].copy_from_slice(bytes);
+        }
+        let id0 = format.id_word() as usize;
+        for (b, block) in tri_words.chunks_mut(bw).enumerate() {
+            let first = b * tpb;
+            let last = (first + tpb).min(bvh.triangles.len());
+            for (s, t) in (first..last).enumerate() {
+                let tri: &[u32] = bytemuck::cast_slice(&bvh.triangles[t]);
+                block[s * 9..s * 9 + 9].copy_from_slice(tri);
+                block[id0 + s] = bvh.prim_ids[t];
+            }
+        }
+        Ok(Blocks {
+            format,
+            node_blocks: node_blocks as u32,
+            tri_blocks: tri_blocks as u32,
+            words,
+        })
+    }
+
+    pub fn count(&self) -> u32 {
+        self.node_blocks + self.tri_blocks
+    }
+
+    pub fn block(&self, k: u32) -> &[u32] {
+        let bw = self.format.words() as usize;
+        &self.words[k as usize * bw..(k as usize + 1) * bw]
+    }
+
+    pub fn bytes(&self) -> u64 {
+        self.words.len() as u64 * 4
+    }
+
+    /// Node `i`, read back from its block (the CPU mirror of the shader's `load_node`).
+    pub fn node(&self, i: u32) -> Node {
+        let npb = self.format.nodes_per_block();
+        let b = self.block(i / npb);
+        let w = ((i % npb) * NODE_WORDS) as usize;
+        *bytemuck::from_bytes(bytemuck::cast_slice(&b[w..w + 8]))
+    }
+
+    /// Triangle `t` (BVH order) and its primitive id.
+    pub fn triangle(&self, t: u32) -> ([[f32; 3]; 3], u32) {
+        let tpb = self.format.tris_per_block();
+        let b = self.block(self.node_blocks + t / tpb);
+        let s = (t % tpb) as usize;
+        let tri: [[f32; 3]; 3] =
+            std::array::from_fn(|v| std::array::from_fn(|a| f32::from_bits(b[s * 9 + v * 3 + a])));
+        (tri, b[self.format.id_word() as usize + s])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::Preset;
+    use crate::scene::Model;
+
+    #[test]
+    fn default_format_matches_the_design() {
+        let f = Format::default();
+        assert_eq!(f.nodes_per_block(), 256);
+        assert_eq!(f.tris_per_block(), 204);
+        assert_eq!(f.texels(), 512);
+        assert!(f.id_word() + f.tris_per_block() <= f.words());
+        assert!(Format::new(100).is_err());
+        assert!(Format::new(0).is_err());
+    }
+
+    #[test]
+    fn packed_blocks_read_back() {
+        let tris: Vec<_> = (0..1000)
+            .map(|i| {
+                let x = i as f32;
+                [[x, 0.0, 0.0], [x + 0.5, 1.0, 0.0], [x, 0.0, 1.0 + x]]
+            })
+            .collect();
+        let model = Model::from_triangles(tris);
+        let format = Format::new(1024).unwrap();
+        let bvh = Bvh::build(&model, Preset::Fast, format.nodes_per_block() as usize);
+        let blocks = Blocks::pack(&bvh, format).unwrap();
+        for (i, n) in bvh.nodes.iter().enumerate() {
+            assert_eq!(blocks.node(i as u32), *n);
+        }
+        for t in 0..bvh.triangles.len() {
+            let (tri, id) = blocks.triangle(t as u32);
+            assert_eq!(tri, bvh.triangles[t]);
+            assert_eq!(id, bvh.prim_ids[t]);
+        }
+    }
+}

@@ -1,0 +1,100 @@
+//! Host mirrors of the structs the GPU reads and writes. Each is `#[repr(C)]` + `Pod` and must
+//! match `shaders/common.wgsl` (or the kernel named) member by member; the layout probe test
+//! (`tests/gpu.rs`) reads every member back through a shader.
+
+use bytemuck::{Pod, Zeroable};
+
+/// `Params` in `shaders/common.wgsl`: the uniform of every kernel.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Params {
+    pub origin: [f32; 4],
+    pub forward: [f32; 4],
+    pub right: [f32; 4],
+    pub up: [f32; 4],
+    pub background: [f32; 4],
+    pub width: u32,
+    pub height: u32,
+    pub tiles_x: u32,
+    pub first_tile: u32,
+    pub batch_rays: u32,
+    pub step_budget: u32,
+    pub stack_size: u32,
+    pub mesh_count: u32,
+    pub node_blocks: u32,
+    pub rows_per_layer: u32,
+    pub nodes_per_block: u32,
+    pub tris_per_block: u32,
+    pub id_word: u32,
+    pub flags: u32,
+    pub pad0: u32,
+    pub pad1: u32,
+}
+const _: () = assert!(std::mem::size_of::<Params>() == 144);
+
+/// `RayState` in `shaders/common.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RayState {
+    pub origin: [f32; 3],
+    pub t: f32,
+    pub dir: [f32; 3],
+    pub hit: u32,
+    pub node: u32,
+    pub sp: u32,
+    pub status: u32,
+    pub steps: u32,
+}
+const _: () = assert!(std::mem::size_of::<RayState>() == 48);
+
+/// `RayState.status` values.
+pub mod status {
+    pub const LIVE: u32 = 0;
+    pub const DONE: u32 = 1;
+    pub const OUTSIDE: u32 = 2;
+    pub const OVERFLOW: u32 = 3;
+}
+
+/// `MeshInfo` in `shaders/common.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MeshInfo {
+    pub color: [f32; 4],
+    pub first_prim: u32,
+    pub pad: [u32; 3],
+}
+const _: () = assert!(std::mem::size_of::<MeshInfo>() == 32);
+
+/// `Pixel` in `shaders/common.wgsl`: the shade kernel's output for one ray.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Pixel {
+    pub rgb: [f32; 3],
+    /// Distance along the normalized ray; +inf on a miss.
+    pub depth: f32,
+    /// Primitive id; `u32::MAX` on a miss.
+    pub id: u32,
+    pub normal: [f32; 3],
+}
+const _: () = assert!(std::mem::size_of::<Pixel>() == 32);
+
+/// `Counter` in `shaders/common.wgsl`: a live-ray count and the indirect dispatch arguments of
+/// the round that consumes it (at byte offset 4).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Counter {
+    pub count: u32,
+    pub dispatch: [u32; 3],
+}
+
+/// `Stats` in `shaders/trace.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Stats {
+    pub steps: u32,
+    pub tri_tests: u32,
+    pub overflows: u32,
+    pub unused: u32,
+}
+
+pub const NONE: u32 = u32::MAX;

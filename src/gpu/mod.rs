@@ -1,0 +1,182 @@
+//! The GPU: adapter choice, device set-up with the adapter's own limits, and the tracer that runs
+//! the WGSL kernels.
+
+pub mod layout;
+pub mod shaders;
+pub mod tracer;
+
+use crate::error::{Error, Result};
+use std::sync::{Arc, Mutex};
+
+/// A device and queue on the chosen adapter.
+pub struct Gpu {
+    pub info: wgpu::AdapterInfo,
+    pub limits: wgpu::Limits,
+    pub features: wgpu::Features,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    /// The first error wgpu reported outside an error scope; checked after every wait.
+    errors: Arc<Mutex<Option<String>>>,
+}
+
+fn instance() -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    // The GL backend has no compute on many drivers and probes X/EGL noisily; use it only when
+    // asked for with WGPU_BACKEND.
+    if std::env::var_os("WGPU_BACKEND").is_none() {
+        desc.backends = wgpu::Backends::PRIMARY;
+    }
+    wgpu::Instance::new(desc)
+}
+
+/// Every adapter wgpu finds, best first: discrete, integrated, virtual GPUs, then CPU drivers.
+pub fn adapters() -> Vec<wgpu::Adapter> {
+    let mut list = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()));
+    list.retain(|a| a.get_downlevel_capabilities().is_webgpu_compliant() || is_compute(a));
+    list.sort_by_key(|a| rank(a.get_info().device_type));
+    list
+}
+
+fn is_compute(a: &wgpu::Adapter) -> bool {
+    a.get_downlevel_capabilities()
+        .flags
+        .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS | wgpu::DownlevelFlags::INDIRECT_EXECUTION)
+}
+
+fn rank(t: wgpu::DeviceType) -> u8 {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    }
+}
+
+impl Gpu {
+    /// Opens the best adapter, or the first whose name contains `name` (case-insensitive).
+    /// `WGPU_ADAPTER_NAME` works like `name`; `WGPU_BACKEND` limits the backends searched.
+    pub fn new(name: Option<&str>) -> Result<Gpu> {
+        let env_name = std::env::var("WGPU_ADAPTER_NAME").ok();
+        let name = name.or(env_name.as_deref());
+        let list = adapters();
+        let adapter = match name {
+            Some(n) => {
+                let want = n.to_lowercase();
+                list.into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&want))
+                    .ok_or_else(|| {
+                        let names: Vec<String> =
+                            adapters().iter().map(|a| a.get_info().name).collect();
+                        Error::Gpu(format!(
+                            "no adapter named like '{n}'; available: {}",
+                            if names.is_empty() {
+                                "none".into()
+                            } else {
+                                names.join(", ")
+                            }
+                        ))
+                    })?
+            }
+            None => list.into_iter().find(is_compute).ok_or_else(|| {
+                Error::Gpu(
+                    "no GPU adapter with compute shaders found (install mesa-vulkan-drivers for \
+                     lavapipe)"
+                        .into(),
+                )
+            })?,
+        };
+        if !is_compute(&adapter) {
+            return Err(Error::Gpu(format!(
+                "adapter '{}' lacks compute shaders or indirect dispatch",
+                adapter.get_info().name
+            )));
+        }
+        let limits = adapter.limits();
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("dcrt"),
+            required_features: features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("cannot open device: {e}")))?;
+        let errors = Arc::new(Mutex::new(None));
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let mut slot = sink.lock().unwrap_or_else(|p| p.into_inner());
+            if slot.is_none() {
+                *slot = Some(e.to_string());
+            }
+        }));
+        Ok(Gpu {
+            info: adapter.get_info(),
+            limits,
+            features,
+            device,
+            queue,
+            errors,
+        })
+    }
+
+    /// Waits for all submitted work; returns the first device error seen, if any.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("device poll: {e}")))?;
+        self.check()
+    }
+
+    pub fn check(&self) -> Result<()> {
+        let slot = self.errors.lock().unwrap_or_else(|p| p.into_inner()).take();
+        match slot {
+            Some(e) => Err(Error::Gpu(e)),
+            None => Ok(()),
+        }
+    }
+
+    /// A one-line description: name, type, backend, driver.
+    pub fn describe(&self) -> String {
+        describe(&self.info)
+    }
+
+    /// Reads `size` bytes of `buffer` from `offset` (which must allow COPY_SRC).
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buffer, offset, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        self.map_read(&staging)
+    }
+
+    /// Maps a MAP_READ buffer whose copies were submitted, and returns its contents.
+    pub fn map_read(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| Error::Gpu("buffer map callback never ran".into()))?
+            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?
+            .to_vec();
+        staging.unmap();
+        Ok(data)
+    }
+}
+
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!(
+        "{} ({:?}, {:?}, {} {})",
+        info.name, info.device_type, info.backend, info.driver, info.driver_info
+    )
+}

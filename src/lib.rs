@@ -1,0 +1,18 @@
+//! dcrt: a GPU-compute ray tracer for massive triangle models, after the distributed-cache
+//! cluster ray tracer of Ize, Brownlee & Hansen (EGPGV 2011).
+//!
+//! Data flows `scene` (TOML, meshes, generators) → `bvh` (obvhs build, our 32-byte node format in
+//! blocked layout) → `blocks` (8 KiB node and triangle blocks) → `gpu` (WGSL compute: ray
+//! generation, budgeted traversal rounds, shading) → `output` (PNG, EXR). `trace::cpu` is an
+//! independent f64 reference tracer used as the oracle in tests.
+
+pub mod blocks;
+pub mod bvh;
+pub mod error;
+pub mod gpu;
+pub mod output;
+pub mod render;
+pub mod scene;
+pub mod trace;
+
+pub use error::{Error, Result};

@@ -1,0 +1,358 @@
+//! The `dcrt` command line: render, info, bench.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use dcrt::blocks::Format;
+use dcrt::bvh::Preset;
+use dcrt::gpu::Gpu;
+use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
+use dcrt::output::{self, Aov};
+use dcrt::render::{Prepared, render_frame};
+use dcrt::scene::generate::Generator;
+use dcrt::scene::{Scene, check_image_size};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "dcrt",
+    version,
+    about = "GPU-compute ray tracer for massive triangle models"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene to PNG (and EXR).
+    Render(RenderArgs),
+    /// Show the GPU adapters, the one dcrt would use, its limits and features.
+    Info {
+        /// Use the first adapter whose name contains this text.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
+    /// Measure BVH build time and primary-ray throughput.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Clone)]
+struct GpuArgs {
+    /// Use the first adapter whose name contains this text (default: the best GPU, else lavapipe).
+    #[arg(long)]
+    adapter: Option<String>,
+    /// Loop iterations a ray may run per trace dispatch (1..=60000).
+    #[arg(long, default_value_t = DEFAULT_STEP_BUDGET)]
+    step_budget: u32,
+    /// obvhs build preset.
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    bvh_preset: Preset,
+    /// Block size in bytes.
+    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
+    block_size: u32,
+}
+
+#[derive(Args)]
+struct RenderArgs {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Output PNG.
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// Also write linear OpenEXR with R, G, B and the requested AOVs.
+    #[arg(long)]
+    exr: Option<PathBuf>,
+    /// EXR AOVs, comma separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    aov: Vec<Aov>,
+    #[arg(long)]
+    width: Option<u32>,
+    #[arg(long)]
+    height: Option<u32>,
+    #[command(flatten)]
+    gpu: GpuArgs,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene file; without it, a generated scene (--generator, --triangles).
+    scene: Option<PathBuf>,
+    #[arg(long, default_value = "rm")]
+    generator: String,
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    #[arg(long, default_value_t = 1024)]
+    height: u32,
+    /// Timed frames after one warm-up frame; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Also build and trace with every obvhs preset, side by side.
+    #[arg(long)]
+    bvh_presets: bool,
+    /// One JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    gpu: GpuArgs,
+}
+
+fn main() -> ExitCode {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(a) => render(a),
+        Command::Info { adapter } => info(adapter.as_deref()),
+        Command::Bench(a) => bench(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn settings(g: &GpuArgs) -> Settings {
+    Settings {
+        step_budget: g.step_budget,
+        ..Settings::default()
+    }
+}
+
+fn render(a: RenderArgs) -> Result<()> {
+    let scene = Scene::load(&a.scene)?;
+    let width = a.width.unwrap_or(scene.width);
+    let height = a.height.unwrap_or(scene.height);
+    check_image_size(width, height)?;
+    if !a.aov.is_empty() && a.exr.is_none() {
+        bail!("--aov needs --exr FILE: the AOVs are EXR channels");
+    }
+    for out in std::iter::once(&a.output).chain(a.exr.as_ref()) {
+        check_writable(out)?;
+    }
+    let format = Format::new(a.gpu.block_size)?;
+    let prepared = Prepared::new(&scene, a.gpu.bvh_preset, format)?;
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    eprintln!("adapter: {}", gpu.describe());
+    let camera = scene.camera_or_default(&prepared.model);
+    let mut tracer = prepared.tracer(&gpu, settings(&a.gpu))?;
+    let (frame, stats) = render_frame(&mut tracer, &camera, width, height, scene.background)?;
+    output::write_png(&a.output, &frame)?;
+    if let Some(exr) = &a.exr {
+        output::write_exr(exr, &frame, &a.aov)?;
+    }
+    eprintln!(
+        "{} triangles, BVH {:.0} ms (depth {}), {}x{} traced in {:.1} ms ({} rounds), wrote {}{}",
+        prepared.model.triangles.len(),
+        (prepared.bvh.build_time + prepared.bvh.layout_time).as_secs_f64() * 1e3,
+        prepared.bvh.depth,
+        width,
+        height,
+        stats.seconds * 1e3,
+        stats.max_live_rounds,
+        a.output.display(),
+        a.exr
+            .as_ref()
+            .map(|p| format!(" and {}", p.display()))
+            .unwrap_or_default()
+    );
+    Ok(())
+}
+
+/// Fails before any work if an output cannot be created, so no render is lost to a typo.
+fn check_writable(path: &Path) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!(
+            "{}: the output directory {} does not exist",
+            path.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+fn info(adapter: Option<&str>) -> Result<()> {
+    println!("adapters found:");
+    for a in dcrt::gpu::adapters() {
+        println!("  {}", dcrt::gpu::describe(&a.get_info()));
+    }
+    let gpu = Gpu::new(adapter)?;
+    println!("using: {}", gpu.describe());
+    let l = &gpu.limits;
+    println!("limits:");
+    println!(
+        "  max_storage_buffer_binding_size {} MiB",
+        l.max_storage_buffer_binding_size >> 20
+    );
+    println!("  max_buffer_size {} MiB", l.max_buffer_size >> 20);
+    println!("  max_texture_dimension_2d {}", l.max_texture_dimension_2d);
+    println!("  max_texture_array_layers {}", l.max_texture_array_layers);
+    println!(
+        "  max_compute_workgroups_per_dimension {}",
+        l.max_compute_workgroups_per_dimension
+    );
+    println!(
+        "  max_compute_invocations_per_workgroup {}",
+        l.max_compute_invocations_per_workgroup
+    );
+    println!(
+        "  max_storage_buffers_per_shader_stage {}",
+        l.max_storage_buffers_per_shader_stage
+    );
+    println!("features: {:?}", gpu.features);
+    Ok(())
+}
+
+#[derive(serde::Serialize)]
+struct BenchRow {
+    preset: String,
+    bvh_build_ms: f64,
+    bvh_depth: u32,
+    trace_ms_median: f64,
+    trace_ms_min: f64,
+    trace_ms_max: f64,
+    mrays_per_s: f64,
+    steps_per_ray: f64,
+    tri_tests_per_ray: f64,
+}
+
+#[derive(serde::Serialize)]
+struct BenchReport {
+    adapter: String,
+    scene: String,
+    triangles: usize,
+    width: u32,
+    height: u32,
+    runs: usize,
+    bvh_preset: String,
+    bvh_build_ms: f64,
+    trace_ms_median: f64,
+    mrays_per_s: f64,
+    rows: Vec<BenchRow>,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+fn bench(a: BenchArgs) -> Result<()> {
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    check_image_size(a.width, a.height)?;
+    let scene = match &a.scene {
+        Some(p) => Scene::load(p)?,
+        None => {
+            let g = Generator::parse(&a.generator).with_context(|| {
+                format!(
+                    "unknown generator '{}' (known: {})",
+                    a.generator,
+                    Generator::NAMES.join(", ")
+                )
+            })?;
+            Scene::generated(g, a.triangles, a.width, a.height)
+        }
+    };
+    let model = scene.load_model()?;
+    let camera = scene.camera_or_default(&model);
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    let format = Format::new(a.gpu.block_size)?;
+    let presets: Vec<Preset> = if a.bvh_presets {
+        vec![
+            Preset::Fastest,
+            Preset::VeryFast,
+            Preset::Fast,
+            Preset::Medium,
+        ]
+    } else {
+        vec![a.gpu.bvh_preset]
+    };
+    let mut rows = Vec::new();
+    let rays = f64::from(a.width) * f64::from(a.height);
+    for preset in presets {
+        let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
+        let mut tracer = prepared.tracer(&gpu, settings(&a.gpu))?;
+        // Warm-up: pipeline compilation and first-touch of buffers.
+        let (_, _) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
+        let mut times = Vec::new();
+        let mut last = None;
+        for _ in 0..a.runs {
+            let (_, s) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
+            times.push(s.seconds * 1e3);
+            last = Some(s);
+        }
+        let s = last.unwrap_or_default();
+        let med = median(&mut times);
+        rows.push(BenchRow {
+            preset: format!("{preset:?}").to_lowercase(),
+            bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
+            bvh_depth: prepared.bvh.depth,
+            trace_ms_median: med,
+            trace_ms_min: times[0],
+            trace_ms_max: times[times.len() - 1],
+            mrays_per_s: rays / (med * 1e-3) / 1e6,
+            steps_per_ray: s.steps as f64 / rays,
+            tri_tests_per_ray: s.tri_tests as f64 / rays,
+        });
+    }
+    let main_row = rows
+        .iter()
+        .find(|r| r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase())
+        .unwrap_or(&rows[0]);
+    let report = BenchReport {
+        adapter: gpu.describe(),
+        scene: scene.path.display().to_string(),
+        triangles: model.triangles.len(),
+        width: a.width,
+        height: a.height,
+        runs: a.runs,
+        bvh_preset: main_row.preset.clone(),
+        bvh_build_ms: main_row.bvh_build_ms,
+        trace_ms_median: main_row.trace_ms_median,
+        mrays_per_s: main_row.mrays_per_s,
+        rows: Vec::new(),
+    };
+    let report = BenchReport { rows, ..report };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!("adapter   {}", report.adapter);
+    println!(
+        "scene     {} ({} triangles), {}x{}, median of {} runs after a warm-up",
+        report.scene, report.triangles, report.width, report.height, report.runs
+    );
+    println!(
+        "{:<9} {:>10} {:>6} {:>12} {:>10} {:>10} {:>9} {:>9}",
+        "preset", "build ms", "depth", "trace ms", "min", "max", "Mrays/s", "steps/ray"
+    );
+    for r in &report.rows {
+        println!(
+            "{:<9} {:>10.1} {:>6} {:>12.1} {:>10.1} {:>10.1} {:>9.2} {:>9.1}",
+            r.preset,
+            r.bvh_build_ms,
+            r.bvh_depth,
+            r.trace_ms_median,
+            r.trace_ms_min,
+            r.trace_ms_max,
+            r.mrays_per_s,
+            r.steps_per_ray
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,137 @@
+//! Image outputs: PNG (sRGB, 8 bits) for people, OpenEXR (linear f32 `R`, `G`, `B` and the AOVs
+//! `Z`, `id`, `N.X`, `N.Y`, `N.Z`) for tools. The EXR channel names and meanings are a contract
+//! (DESIGN.md section 7).
+
+use crate::error::{Error as DcrtError, Result};
+use crate::gpu::tracer::Frame;
+use std::path::Path;
+
+/// Extra EXR channels beside `R`, `G`, `B`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum Aov {
+    /// `Z`: f32 hit distance along the normalized ray, +inf on a miss.
+    Depth,
+    /// `id`: u32 primitive id, 0xFFFFFFFF on a miss.
+    Id,
+    /// `N.X`, `N.Y`, `N.Z`: unit geometric normal.
+    Normal,
+}
+
+/// Linear to sRGB transfer, then 8 bits.
+pub fn srgb8(linear: f32) -> u8 {
+    let c = if linear.is_nan() {
+        0.0
+    } else {
+        linear.clamp(0.0, 1.0)
+    };
+    let s = if c <= 0.003_130_8 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+pub fn to_rgb8(frame: &Frame) -> image::RgbImage {
+    let mut img = image::RgbImage::new(frame.width, frame.height);
+    for (p, out) in frame.pixels.iter().zip(img.pixels_mut()) {
+        *out = image::Rgb(p.rgb.map(srgb8));
+    }
+    img
+}
+
+pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
+    to_rgb8(frame)
+        .save_with_format(path, image::ImageFormat::Png)
+        .map_err(|e| match e {
+            image::ImageError::IoError(io) => DcrtError::io(path, io),
+            other => DcrtError::format(path, None, other.to_string()),
+        })
+}
+
+pub fn write_exr(path: &Path, frame: &Frame, aovs: &[Aov]) -> Result<()> {
+    use exr::prelude::*;
+    let px = &frame.pixels;
+    let f = |g: &dyn Fn(&crate::gpu::layout::Pixel) -> f32| -> FlatSamples {
+        FlatSamples::F32(px.iter().map(g).collect())
+    };
+    let mut channels: Vec<AnyChannel<FlatSamples>> = vec![
+        AnyChannel::new("R", f(&|p| p.rgb[0])),
+        AnyChannel::new("G", f(&|p| p.rgb[1])),
+        AnyChannel::new("B", f(&|p| p.rgb[2])),
+    ];
+    if aovs.contains(&Aov::Depth) {
+        channels.push(AnyChannel::new("Z", f(&|p| p.depth)));
+    }
+    if aovs.contains(&Aov::Id) {
+        channels.push(AnyChannel::new(
+            "id",
+            FlatSamples::U32(px.iter().map(|p| p.id).collect()),
+        ));
+    }
+    if aovs.contains(&Aov::Normal) {
+        channels.push(AnyChannel::new("N.X", f(&|p| p.normal[0])));
+        channels.push(AnyChannel::new("N.Y", f(&|p| p.normal[1])));
+        channels.push(AnyChannel::new("N.Z", f(&|p| p.normal[2])));
+    }
+    let layer = Layer::new(
+        (frame.width as usize, frame.height as usize),
+        LayerAttributes::default(),
+        Encoding::FAST_LOSSLESS,
+        AnyChannels::sort(SmallVec::from_vec(channels)),
+    );
+    Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| match e {
+            exr::error::Error::Io(io) => DcrtError::io(path, io),
+            other => DcrtError::format(path, None, other.to_string()),
+        })
+}
+
+/// Reads every channel of an EXR written by `write_exr` (tests and tools): name → samples, with
+/// u32 channels kept exact.
+pub fn read_exr(path: &Path) -> Result<Vec<(String, ExrSamples)>> {
+    use exr::prelude::*;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| DcrtError::format(path, None, e.to_string()))?;
+    Ok(image
+        .layer_data
+        .channel_data
+        .list
+        .iter()
+        .map(|c| {
+            let s = match &c.sample_data {
+                FlatSamples::U32(v) => ExrSamples::U32(v.clone()),
+                other => ExrSamples::F32(other.values_as_f32().collect()),
+            };
+            (c.name.to_string(), s)
+        })
+        .collect())
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum ExrSamples {
+    F32(Vec<f32>),
+    U32(Vec<u32>),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_endpoints() {
+        assert_eq!(srgb8(0.0), 0);
+        assert_eq!(srgb8(1.0), 255);
+        assert_eq!(srgb8(2.0), 255);
+        assert_eq!(srgb8(f32::NAN), 0);
+        assert_eq!(srgb8(0.2140), 128);
+    }
+}

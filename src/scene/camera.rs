@@ -1,0 +1,163 @@
+//! The pinhole camera of the scene contract (DESIGN.md section 7), with ParaView's names.
+
+use crate::error::{Error, Result};
+use glam::DVec3;
+
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    pub position: [f64; 3],
+    pub focal_point: [f64; 3],
+    pub view_up: [f64; 3],
+    /// Vertical field of view in degrees.
+    pub view_angle: f64,
+}
+
+/// The camera reduced to what ray generation needs, in f32 exactly as the GPU gets it. The ray of
+/// pixel (x, y) is `normalize(forward + sx * right + sy * up)` with `sx = 2(x+0.5)/w - 1` and
+/// `sy = 1 - 2(y+0.5)/h`; `right` and `up` already carry `tan(view_angle/2)` and the aspect.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraBasis {
+    pub origin: [f32; 3],
+    pub forward: [f32; 3],
+    pub right: [f32; 3],
+    pub up: [f32; 3],
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Camera {
+    pub fn validate(&self) -> Result<()> {
+        let all = self
+            .position
+            .iter()
+            .chain(&self.focal_point)
+            .chain(&self.view_up)
+            .chain(std::iter::once(&self.view_angle));
+        if !all.into_iter().all(|v| v.is_finite()) {
+            return Err(Error::Invalid(
+                "camera: every value must be a finite number".into(),
+            ));
+        }
+        let f = DVec3::from(self.focal_point) - DVec3::from(self.position);
+        if f.length() == 0.0 {
+            return Err(Error::Invalid(
+                "camera: position and focal_point are the same point".into(),
+            ));
+        }
+        let up = DVec3::from(self.view_up);
+        if f.normalize().cross(up).length() < 1e-9 {
+            return Err(Error::Invalid(
+                "camera: view_up is zero or parallel to the view direction".into(),
+            ));
+        }
+        if !(self.view_angle > 0.0 && self.view_angle < 180.0) {
+            return Err(Error::Invalid(format!(
+                "camera: view_angle must be between 0 and 180 degrees, got {}",
+                self.view_angle
+            )));
+        }
+        Ok(())
+    }
+
+    /// Assumes `validate` passed.
+    pub fn basis(&self, width: u32, height: u32) -> CameraBasis {
+        let f = (DVec3::from(self.focal_point) - DVec3::from(self.position)).normalize();
+        let r = f.cross(DVec3::from(self.view_up)).normalize();
+        let u = r.cross(f);
+        let h = (self.view_angle.to_radians() / 2.0).tan();
+        let a = f64::from(width) / f64::from(height);
+        let f32v = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+        CameraBasis {
+            origin: f32v(DVec3::from(self.position)),
+            forward: f32v(f),
+            right: f32v(r * (h * a)),
+            up: f32v(u * h),
+            width,
+            height,
+        }
+    }
+
+    /// The same camera turned by `angle` radians about the axis through the focal point along
+    /// `view_up`: the orbit used for multi-frame renders.
+    pub fn orbit(&self, angle: f64) -> Camera {
+        let c = DVec3::from(self.focal_point);
+        let axis = DVec3::from(self.view_up).normalize();
+        let rot = glam::DQuat::from_axis_angle(axis, angle);
+        let p = c + rot * (DVec3::from(self.position) - c);
+        Camera {
+            position: p.into(),
+            ..*self
+        }
+    }
+}
+
+impl CameraBasis {
+    /// The normalized direction of pixel (x, y)'s ray, computed in f64 from the f32 basis: the
+    /// reference the GPU's f32 ray generation is compared against.
+    pub fn dir(&self, x: u32, y: u32) -> [f64; 3] {
+        let sx = 2.0 * (f64::from(x) + 0.5) / f64::from(self.width) - 1.0;
+        let sy = 1.0 - 2.0 * (f64::from(y) + 0.5) / f64::from(self.height);
+        let v = |a: [f32; 3]| DVec3::new(a[0].into(), a[1].into(), a[2].into());
+        let d = v(self.forward) + sx * v(self.right) + sy * v(self.up);
+        d.normalize().into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera {
+            position: [0.0, -5.0, 0.0],
+            focal_point: [0.0, 0.0, 0.0],
+            view_up: [0.0, 0.0, 1.0],
+            view_angle: 90.0,
+        }
+    }
+
+    #[test]
+    fn centre_pixel_looks_at_focal_point() {
+        let b = cam().basis(3, 3);
+        let d = b.dir(1, 1);
+        assert!((d[1] - 1.0).abs() < 1e-12 && d[0].abs() < 1e-12 && d[2].abs() < 1e-12);
+    }
+
+    #[test]
+    fn corners_follow_the_contract() {
+        // 90 degrees, square image: the top-left pixel centre of a 2x2 image is at (-0.5, 0.5).
+        let b = cam().basis(2, 2);
+        let d = b.dir(0, 0);
+        let expect = DVec3::new(-0.5, 1.0, 0.5).normalize();
+        assert!((DVec3::from(d) - expect).length() < 1e-7, "{d:?}");
+        // Wider than tall: x is scaled by the aspect.
+        let b = cam().basis(4, 2);
+        let d = DVec3::from(b.dir(3, 1));
+        let expect = DVec3::new(2.0 * 0.75, 1.0, -0.5).normalize();
+        assert!((d - expect).length() < 1e-7, "{d:?}");
+    }
+
+    #[test]
+    fn bad_cameras_are_refused() {
+        let mut c = cam();
+        c.focal_point = c.position;
+        assert!(c.validate().is_err());
+        let mut c = cam();
+        c.view_up = [0.0, 1.0, 0.0];
+        assert!(c.validate().is_err());
+        let mut c = cam();
+        c.view_angle = 0.0;
+        assert!(c.validate().is_err());
+        let mut c = cam();
+        c.position[0] = f64::NAN;
+        assert!(c.validate().is_err());
+    }
+
+    #[test]
+    fn orbit_keeps_distance() {
+        let c = cam().orbit(1.0);
+        let d = DVec3::from(c.position).length();
+        assert!((d - 5.0).abs() < 1e-12);
+    }
+}

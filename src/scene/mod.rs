@@ -1,0 +1,445 @@
+//! Scenes: the TOML scene file (DESIGN.md section 7), mesh files and procedural generators, and
+//! the flattened triangle model the BVH is built from.
+
+pub mod camera;
+pub mod generate;
+pub mod mesh;
+pub mod obj;
+pub mod ply;
+
+use crate::error::{Error, Result};
+pub use camera::{Camera, CameraBasis};
+use generate::Generator;
+use mesh::Mesh;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// The largest image side we accept; beyond it a render is a typo, not a request.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    camera: Option<Camera>,
+    image: Option<ImageSpec>,
+    #[serde(rename = "mesh", default)]
+    meshes: Vec<MeshSpec>,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ImageSpec {
+    width: u32,
+    height: u32,
+    background: Option<[f32; 3]>,
+}
+
+/// One `[[mesh]]` entry: a file or a generator, with a colour and an optional placement.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSpec {
+    /// OBJ or PLY file, relative to the scene file.
+    pub file: Option<PathBuf>,
+    /// Procedural generator name (`rm`, `assembly`).
+    pub generator: Option<String>,
+    /// Generator target size in triangles.
+    pub triangles: Option<u64>,
+    pub seed: Option<u64>,
+    /// Linear RGB albedo in [0, 1].
+    pub color: Option<[f32; 3]>,
+    /// Applied after `scale`.
+    pub translate: Option<[f64; 3]>,
+    pub scale: Option<f64>,
+}
+
+/// A parsed and checked scene file.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub path: PathBuf,
+    pub camera: Option<Camera>,
+    pub width: u32,
+    pub height: u32,
+    /// Linear RGB of rays that hit nothing.
+    pub background: [f32; 3],
+    pub meshes: Vec<MeshSpec>,
+}
+
+pub const DEFAULT_COLOR: [f32; 3] = [0.8, 0.8, 0.8];
+pub const DEFAULT_BACKGROUND: [f32; 3] = [0.05, 0.05, 0.08];
+const DEFAULT_GENERATOR_TRIANGLES: u64 = 100_000;
+
+impl Scene {
+    pub fn load(path: &Path) -> Result<Scene> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Scene::parse(&text, path)
+    }
+
+    /// Parses scene text; `path` names the file in errors and anchors relative mesh paths.
+    pub fn parse(text: &str, path: &Path) -> Result<Scene> {
+        let file: SceneFile = toml::from_str(text)
+            .map_err(|e| Error::format(path, None, e.to_string().trim_end().to_string()))?;
+        let bad = |msg: String| Error::format(path, None, msg);
+        if let Some(c) = &file.camera {
+            c.validate().map_err(|e| bad(e.to_string()))?;
+        }
+        let image = file.image.unwrap_or(ImageSpec {
+            width: 512,
+            height: 512,
+            background: None,
+        });
+        check_image_size(image.width, image.height).map_err(|e| bad(e.to_string()))?;
+        let background = image.background.unwrap_or(DEFAULT_BACKGROUND);
+        check_color(background).map_err(|m| bad(format!("image.background: {m}")))?;
+        if file.meshes.is_empty() {
+            return Err(bad("the scene has no [[mesh]] entries".into()));
+        }
+        for (i, m) in file.meshes.iter().enumerate() {
+            let at = |m: &str| bad(format!("mesh {}: {m}", i + 1));
+            match (&m.file, &m.generator) {
+                (Some(_), Some(_)) => {
+                    return Err(at("give either `file` or `generator`, not both"));
+                }
+                (None, None) => return Err(at("needs a `file` or a `generator`")),
+                (Some(_), None) if m.triangles.is_some() || m.seed.is_some() => {
+                    return Err(at("`triangles` and `seed` are for generators only"));
+                }
+                (None, Some(g)) => {
+                    if Generator::parse(g).is_none() {
+                        return Err(at(&format!(
+                            "unknown generator '{g}' (known: {})",
+                            Generator::NAMES.join(", ")
+                        )));
+                    }
+                    if let Some(t) = m.triangles
+                        && !(1..=MAX_GENERATED_TRIANGLES).contains(&t)
+                    {
+                        return Err(at(&format!(
+                            "triangles must be between 1 and {MAX_GENERATED_TRIANGLES}, got {t}"
+                        )));
+                    }
+                }
+                _ => {}
+            }
+            if let Some(c) = m.color {
+                check_color(c).map_err(|e| at(&format!("color: {e}")))?;
+            }
+            if let Some(s) = m.scale
+                && !(s.is_finite() && s > 0.0)
+            {
+                return Err(at(&format!("scale must be finite and positive, got {s}")));
+            }
+            if let Some(t) = m.translate
+                && !t.iter().all(|v| v.is_finite())
+            {
+                return Err(at("translate must be finite"));
+            }
+        }
+        Ok(Scene {
+            path: path.to_path_buf(),
+            camera: file.camera,
+            width: image.width,
+            height: image.height,
+            background,
+            meshes: file.meshes,
+        })
+    }
+
+    /// A scene made in code from one generator, with its default view.
+    pub fn generated(generator: Generator, triangles: u64, width: u32, height: u32) -> Scene {
+        Scene {
+            path: PathBuf::from(format!("<{}>", generator.name())),
+            camera: None,
+            width,
+            height,
+            background: DEFAULT_BACKGROUND,
+            meshes: vec![MeshSpec {
+                file: None,
+                generator: Some(generator.name().into()),
+                triangles: Some(triangles),
+                seed: None,
+                color: None,
+                translate: None,
+                scale: None,
+            }],
+        }
+    }
+
+    /// Loads every mesh and flattens them into one triangle list in primitive-id order.
+    pub fn load_model(&self) -> Result<Model> {
+        let dir = self.path.parent().unwrap_or(Path::new("."));
+        let mut model = Model::default();
+        for spec in &self.meshes {
+            let (mesh, origin) = if let Some(file) = &spec.file {
+                let path = dir.join(file);
+                (load_mesh_file(&path)?, path)
+            } else {
+                let name = spec.generator.as_deref().unwrap_or_default();
+                let g = Generator::parse(name)
+                    .ok_or_else(|| Error::Invalid(format!("unknown generator '{name}'")))?;
+                let mesh = g.generate(
+                    spec.triangles.unwrap_or(DEFAULT_GENERATOR_TRIANGLES),
+                    spec.seed.unwrap_or(1),
+                );
+                (mesh, PathBuf::from(format!("<generator {name}>")))
+            };
+            mesh.validate(&origin)?;
+            model.push(&mesh, spec, &origin)?;
+        }
+        if model.triangles.is_empty() {
+            return Err(Error::format(
+                &self.path,
+                None,
+                "the scene has no triangles",
+            ));
+        }
+        Ok(model)
+    }
+
+    /// The scene's camera, or a default one: a generator's own view, else a view fitted to the
+    /// model's bounds.
+    pub fn camera_or_default(&self, model: &Model) -> Camera {
+        if let Some(c) = self.camera {
+            return c;
+        }
+        if let [spec] = self.meshes.as_slice()
+            && spec.translate.is_none()
+            && spec.scale.is_none()
+            && let Some(g) = spec.generator.as_deref().and_then(Generator::parse)
+        {
+            let v = g.default_view();
+            return Camera {
+                position: v.position,
+                focal_point: v.focal_point,
+                view_up: v.view_up,
+                view_angle: v.view_angle,
+            };
+        }
+        fitted_camera(model.bounds)
+    }
+}
+
+/// Generators are bounded so that a typo does not ask for more memory than any node has.
+pub const MAX_GENERATED_TRIANGLES: u64 = 1_000_000_000;
+
+pub fn check_image_size(width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(Error::Invalid(format!(
+            "image size {width}x{height} is out of range: each side must be 1..={MAX_IMAGE_SIDE}"
+        )));
+    }
+    Ok(())
+}
+
+fn check_color(c: [f32; 3]) -> std::result::Result<(), String> {
+    if c.iter().all(|v| v.is_finite() && *v >= 0.0) {
+        Ok(())
+    } else {
+        Err(format!(
+            "components must be finite and non-negative, got {c:?}"
+        ))
+    }
+}
+
+/// Loads an OBJ or PLY file by its extension.
+pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => obj::load_obj(path),
+        Some("ply") => ply::load_ply(path),
+        _ => Err(Error::format(
+            path,
+            None,
+            "unknown mesh format: the file name must end in .obj or .ply",
+        )),
+    }
+}
+
+/// Axis-aligned bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+impl Default for Bounds {
+    fn default() -> Self {
+        Bounds {
+            min: [f32::INFINITY; 3],
+            max: [f32::NEG_INFINITY; 3],
+        }
+    }
+}
+
+impl Bounds {
+    pub fn grow(&mut self, p: [f32; 3]) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(p[a]);
+            self.max[a] = self.max[a].max(p[a]);
+        }
+    }
+    pub fn union(&mut self, o: &Bounds) {
+        self.grow(o.min);
+        self.grow(o.max);
+    }
+    pub fn is_empty(&self) -> bool {
+        (0..3).any(|a| self.min[a] > self.max[a])
+    }
+}
+
+/// All triangles of a scene, unshared, in primitive-id order (meshes in scene order, faces in file
+/// order), with each mesh's first primitive id and colour.
+#[derive(Clone, Debug, Default)]
+pub struct Model {
+    pub triangles: Vec<[[f32; 3]; 3]>,
+    pub mesh_first: Vec<u32>,
+    pub colors: Vec<[f32; 3]>,
+    pub bounds: Bounds,
+}
+
+impl Model {
+    fn push(&mut self, mesh: &Mesh, spec: &MeshSpec, origin: &Path) -> Result<()> {
+        let total = self.triangles.len() as u64 + mesh.triangles.len() as u64;
+        if total >= u64::from(u32::MAX) {
+            return Err(Error::format(
+                origin,
+                None,
+                "the scene has more than 2^32-1 triangles",
+            ));
+        }
+        let scale = spec.scale.unwrap_or(1.0);
+        let t = spec.translate.unwrap_or([0.0; 3]);
+        let place = |p: [f32; 3]| -> [f32; 3] {
+            std::array::from_fn(|a| (f64::from(p[a]) * scale + t[a]) as f32)
+        };
+        self.mesh_first.push(self.triangles.len() as u32);
+        self.colors.push(spec.color.unwrap_or(DEFAULT_COLOR));
+        self.triangles.reserve(mesh.triangles.len());
+        for i in 0..mesh.triangles.len() {
+            let tri = mesh.corners(i).map(place);
+            for p in &tri {
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(Error::format(
+                        origin,
+                        Some(format!("triangle {i}")),
+                        "a coordinate is not finite after scale and translate",
+                    ));
+                }
+                self.bounds.grow(*p);
+            }
+            self.triangles.push(tri);
+        }
+        Ok(())
+    }
+
+    /// The mesh a primitive belongs to.
+    pub fn mesh_of(&self, prim: u32) -> usize {
+        self.mesh_first.partition_point(|&f| f <= prim) - 1
+    }
+
+    /// A model from a bare triangle list, one mesh, default colour (tests and benchmarks).
+    pub fn from_triangles(triangles: Vec<[[f32; 3]; 3]>) -> Model {
+        let mut bounds = Bounds::default();
+        triangles.iter().flatten().for_each(|p| bounds.grow(*p));
+        Model {
+            triangles,
+            mesh_first: vec![0],
+            colors: vec![DEFAULT_COLOR],
+            bounds,
+        }
+    }
+}
+
+/// A three-quarter view from the front, above, that frames the bounds.
+pub fn fitted_camera(b: Bounds) -> Camera {
+    let c: [f64; 3] = std::array::from_fn(|a| (f64::from(b.min[a]) + f64::from(b.max[a])) / 2.0);
+    let r = (0..3)
+        .map(|a| f64::from(b.max[a]) - f64::from(b.min[a]))
+        .map(|e| e * e)
+        .sum::<f64>()
+        .sqrt()
+        .max(1e-6)
+        / 2.0;
+    let view_angle: f64 = 40.0;
+    let dist = r / (view_angle.to_radians() / 2.0).sin();
+    let dir = glam::DVec3::new(0.45, -1.0, 0.6).normalize() * dist;
+    Camera {
+        position: [c[0] + dir.x, c[1] + dir.y, c[2] + dir.z],
+        focal_point: c,
+        view_up: [0.0, 0.0, 1.0],
+        view_angle,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Scene> {
+        Scene::parse(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn minimal_scene() {
+        let s = parse("[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n").unwrap();
+        assert_eq!((s.width, s.height), (512, 512));
+        assert_eq!(s.meshes.len(), 1);
+    }
+
+    #[test]
+    fn errors_name_the_file_and_problem() {
+        let cases = [
+            (
+                "[image]\nwidth = 0\nheight = 10\n[[mesh]]\ngenerator=\"rm\"",
+                "out of range",
+            ),
+            (
+                "[image]\nwidth = 100000\nheight = 10\n[[mesh]]\ngenerator=\"rm\"",
+                "out of range",
+            ),
+            ("[image]\nwidth = -4\nheight = 10\n", "width"),
+            ("[image]\nwidth = \"wide\"\nheight = 10\n", "width"),
+            ("[[mesh]]\ngenerator = \"rm\"\nshiny = true\n", "shiny"),
+            ("[cam]\nx = 1\n", "cam"),
+            ("[[mesh]]\ngenerator = \"teapot\"\n", "unknown generator"),
+            ("[[mesh]]\ncolor = [1, 0, 0]\n", "needs a `file`"),
+            ("", "no [[mesh]]"),
+            (
+                "[camera]\nposition=[0,0,0]\nfocal_point=[0,0,0]\nview_up=[0,0,1]\nview_angle=30\n[[mesh]]\ngenerator=\"rm\"",
+                "same point",
+            ),
+            (
+                "[[mesh]]\ngenerator = \"rm\"\ncolor = [1, -1, 0]\n",
+                "color",
+            ),
+            ("[[mesh]]\ngenerator = \"rm\"\ntriangles = 0\n", "triangles"),
+        ];
+        for (text, want) in cases {
+            let e = parse(text).expect_err(text).to_string();
+            assert!(e.contains("test.toml"), "{e}");
+            assert!(e.contains(want), "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn toml_errors_carry_the_line() {
+        let e = parse("[[mesh]]\ngenerator = \"rm\"\ntriangles = [\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line"), "{e}");
+    }
+
+    #[test]
+    fn mesh_of_finds_ranges() {
+        let m = Model {
+            mesh_first: vec![0, 5, 5, 9],
+            ..Model::default()
+        };
+        assert_eq!(m.mesh_of(0), 0);
+        assert_eq!(m.mesh_of(4), 0);
+        assert_eq!(m.mesh_of(5), 2);
+        assert_eq!(m.mesh_of(100), 3);
+    }
+}
