@@ -5,7 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
-use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
+use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, MAX_STEP_BUDGET, Settings};
 use dcrt::output::{self, Aov};
 use dcrt::render::{Prepared, render_frame};
 use dcrt::scene::generate::Generator;
@@ -125,6 +125,7 @@ fn settings(g: &GpuArgs) -> Settings {
 }
 
 fn render(a: RenderArgs) -> Result<()> {
+    check_budget(a.gpu.step_budget)?;
     let scene = Scene::load(&a.scene)?;
     let width = a.width.unwrap_or(scene.width);
     let height = a.height.unwrap_or(scene.height);
@@ -161,6 +162,13 @@ fn render(a: RenderArgs) -> Result<()> {
             .map(|p| format!(" and {}", p.display()))
             .unwrap_or_default()
     );
+    Ok(())
+}
+
+fn check_budget(b: u32) -> Result<()> {
+    if !(1..=MAX_STEP_BUDGET).contains(&b) {
+        bail!("--step-budget {b} is out of range 1..={MAX_STEP_BUDGET} (lavapipe stops loops at 65,535)");
+    }
     Ok(())
 }
 
@@ -255,6 +263,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         bail!("--runs must be at least 1");
     }
     check_image_size(a.width, a.height)?;
+    check_budget(a.gpu.step_budget)?;
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,
         None => {

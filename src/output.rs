@@ -132,6 +132,6 @@ mod tests {
         assert_eq!(srgb8(1.0), 255);
         assert_eq!(srgb8(2.0), 255);
         assert_eq!(srgb8(f32::NAN), 0);
-        assert_eq!(srgb8(0.2140), 128);
+        assert_eq!(srgb8(0.2163), 128);
     }
 }

@@ -1,0 +1,97 @@
+//! Helpers shared by the integration tests.
+
+use dcrt::blocks::Format;
+use dcrt::bvh::Preset;
+use dcrt::gpu::Gpu;
+use dcrt::gpu::layout::Pixel;
+use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
+use dcrt::render::Prepared;
+use dcrt::scene::{Camera, Model, Scene};
+use dcrt::trace::cpu::{Hit, Ray, Reference};
+use std::path::{Path, PathBuf};
+
+pub fn gpu() -> Gpu {
+    Gpu::new(None).expect("a GPU adapter (lavapipe: apt install mesa-vulkan-drivers)")
+}
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+pub fn scene(name: &str) -> Scene {
+    Scene::load(&repo().join("scenes").join(name)).unwrap()
+}
+
+pub fn prepare(model: Model) -> Prepared {
+    Prepared::from_model(model, Preset::Fast, Format::default(), 0.0).unwrap()
+}
+
+pub fn render(
+    gpu: &Gpu,
+    prepared: &Prepared,
+    camera: &Camera,
+    w: u32,
+    h: u32,
+    settings: Settings,
+) -> (Frame, FrameStats) {
+    let mut tracer = prepared.tracer(gpu, settings).unwrap();
+    tracer
+        .render(&camera.basis(w, h), [0.1, 0.2, 0.3])
+        .unwrap()
+}
+
+/// The reference hit of every pixel, through the same pixel-centre rays.
+pub fn reference(model: &Model, camera: &Camera, w: u32, h: u32) -> Vec<Option<Hit>> {
+    let basis = camera.basis(w, h);
+    let rays: Vec<Ray> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| Ray {
+            origin: basis.origin,
+            dir: basis.dir(x, y).map(|c| c as f32),
+            tmax: f32::INFINITY,
+        })
+        .collect();
+    Reference::new(&model.triangles).closest_hits(&rays)
+}
+
+pub fn is_miss(p: &Pixel) -> bool {
+    p.id == u32::MAX
+}
+
+/// A temporary directory removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> TempDir {
+        let p = std::env::temp_dir().join(format!("dcrt-test-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&p);
+        std::fs::create_dir_all(&p).unwrap();
+        TempDir(p)
+    }
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+    pub fn write(&self, name: &str, data: impl AsRef<[u8]>) -> PathBuf {
+        let p = self.path(name);
+        std::fs::write(&p, data).unwrap();
+        p
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+pub fn dcrt(args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::process::Output {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"));
+    for a in args {
+        cmd.arg(a);
+    }
+    cmd.output().unwrap()
+}
+
+pub fn exists(p: &Path) -> bool {
+    p.exists()
+}

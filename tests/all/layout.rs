@@ -1,0 +1,100 @@
+//! Layout probe: every member of every struct the host writes for the GPU is read back through a
+//! shader, using the same accessors as the kernels, and compared word by word.
+
+use crate::common::*;
+use dcrt::gpu::layout::{MeshInfo, Params, RayState};
+use dcrt::gpu::tracer::Settings;
+use dcrt::scene::Model;
+
+fn words<T: bytemuck::Pod>(v: &T) -> Vec<u32> {
+    bytemuck::cast_slice(bytemuck::bytes_of(v)).to_vec()
+}
+
+#[test]
+fn every_member_reads_back_through_the_shader() {
+    let gpu = gpu();
+    // Enough triangles for several node and triangle blocks.
+    let tris: Vec<_> = (0..3000)
+        .map(|i| {
+            let x = i as f32 * 0.01;
+            [[x, 0.0, 0.0], [x + 0.005, 1.0, 0.5], [x, 0.25 + x, 1.0]]
+        })
+        .collect();
+    let mut model = Model::from_triangles(tris);
+    model.mesh_first = vec![0, 1000, 2500];
+    model.colors = vec![[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9]];
+    let prepared = prepare(model);
+    let mut tracer = prepared.tracer(&gpu, Settings::default()).unwrap();
+    let nodes = prepared.bvh.nodes.len() as u32;
+    let tris = prepared.bvh.triangles.len() as u32;
+    assert!(prepared.blocks.node_blocks > 1 && prepared.blocks.tri_blocks > 1);
+
+    // Distinct values in every member that the accessors do not depend on.
+    let base = tracer.params();
+    let f = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.5) };
+    let params = Params {
+        origin: f(1),
+        forward: f(2),
+        right: f(3),
+        up: f(4),
+        background: f(5),
+        width: 101,
+        height: 102,
+        tiles_x: 103,
+        first_tile: 104,
+        batch_rays: 105,
+        step_budget: 106,
+        stack_size: 107,
+        flags: 108,
+        pad0: nodes,
+        pad1: tris,
+        ..base
+    };
+    let rays = [
+        RayState {
+            origin: [1.5, 2.5, 3.5],
+            t: 4.5,
+            dir: [5.5, 6.5, 7.5],
+            hit: 8,
+            node: 9,
+            sp: 10,
+            status: 11,
+            steps: 12,
+        },
+        RayState {
+            origin: [-1.0, -2.0, -3.0],
+            t: 1e30,
+            dir: [0.25, 0.125, 0.0625],
+            hit: u32::MAX,
+            node: 77,
+            sp: 78,
+            status: 79,
+            steps: 80,
+        },
+    ];
+    let out = tracer.probe(params, &rays).unwrap();
+    let mut expect = words(&params);
+    for n in &prepared.bvh.nodes {
+        expect.extend(words(n));
+    }
+    for t in 0..tris {
+        let (tri, id) = prepared.blocks.triangle(t);
+        assert_eq!(tri, prepared.bvh.triangles[t as usize]);
+        expect.extend(bytemuck::cast_slice::<_, u32>(&tri));
+        expect.push(id);
+    }
+    for r in &rays {
+        expect.extend(words(r));
+    }
+    for (c, &first) in prepared.model.colors.iter().zip(&prepared.model.mesh_first) {
+        expect.extend(words(&MeshInfo {
+            color: [c[0], c[1], c[2], 1.0],
+            first_prim: first,
+            pad: [0; 3],
+        }));
+    }
+    assert_eq!(out.len(), expect.len());
+    for (i, (a, b)) in out.iter().zip(&expect).enumerate() {
+        assert_eq!(a, b, "word {i} differs");
+    }
+}

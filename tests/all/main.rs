@@ -1,0 +1,9 @@
+//! The integration tests: one binary, a module per area. GPU tests run on whatever adapter
+//! `Gpu::new` picks (lavapipe on machines without a GPU); nextest gives each a timeout.
+
+mod bad_input;
+mod common;
+mod gpu_vs_cpu;
+mod layout;
+mod shaders;
+mod trace_loop;

@@ -1,0 +1,113 @@
+//! The budgeted trace rounds: a tiny step budget gives the same image as a large one (no result
+//! is ever truncated), every ray ends done, and a view of nothing is all misses.
+
+use crate::common::*;
+use dcrt::gpu::layout::status;
+use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
+use dcrt::scene::generate::Generator;
+use dcrt::scene::{Camera, Model, Scene};
+
+fn rm() -> (Model, Camera) {
+    let scene = Scene::generated(Generator::Rm, 30_000, 96, 96);
+    let model = scene.load_model().unwrap();
+    let camera = scene.camera_or_default(&model);
+    (model, camera)
+}
+
+#[test]
+fn small_step_budget_resumes_rays_to_the_same_image() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let big = Settings::default();
+    let (a, sa) = render(&gpu, &prepared, &camera, 96, 96, big);
+    // A budget of 5 iterations is far below what a ray needs (tens of steps), so rays must be
+    // suspended and resumed many times.
+    let small = Settings {
+        step_budget: 5,
+        max_batch_rays: 64 * 48,
+    };
+    let mut tracer = prepared.tracer(&gpu, small).unwrap();
+    let (b, sb) = tracer
+        .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
+        .unwrap();
+    assert!(sa.max_live_rounds <= 2, "the default budget finishes at once");
+    let max_steps = sb.steps as f64 / sb.rays as f64;
+    assert!(
+        sb.max_live_rounds > 4,
+        "budget 5 needs many rounds, took {} (mean steps {max_steps})",
+        sb.max_live_rounds
+    );
+    assert!(sb.batches > 1, "several batches");
+    assert_eq!(sa.steps, sb.steps, "the same traversal, only cut in pieces");
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
+    }
+    // The last batch's rays all finished (none left suspended or overflowed).
+    let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
+    assert!(rays.iter().all(|r| r.status == status::DONE || r.status == status::OUTSIDE));
+    assert!(rays.iter().any(|r| r.steps > 5 * 4));
+}
+
+#[test]
+fn step_budget_is_bounded() {
+    let gpu = gpu();
+    let (model, _) = rm();
+    let prepared = prepare(model);
+    for bad in [0, MAX_STEP_BUDGET + 1] {
+        let s = Settings {
+            step_budget: bad,
+            ..Settings::default()
+        };
+        let err = prepared.tracer(&gpu, s).err().expect("refused");
+        assert!(err.to_string().contains("step budget"), "{err}");
+    }
+}
+
+#[test]
+fn looking_away_misses_everything() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let away = Camera {
+        focal_point: [
+            2.0 * camera.position[0] - camera.focal_point[0],
+            2.0 * camera.position[1] - camera.focal_point[1],
+            2.0 * camera.position[2] - camera.focal_point[2],
+        ],
+        ..camera
+    };
+    let (frame, stats) = render(&gpu, &prepared, &away, 70, 50, Settings::default());
+    assert_eq!(frame.pixels.len(), 70 * 50);
+    for p in &frame.pixels {
+        assert!(is_miss(p));
+        assert_eq!(p.depth, f32::INFINITY);
+        assert_eq!(p.rgb, [0.1, 0.2, 0.3]);
+        assert_eq!(p.normal, [0.0; 3]);
+    }
+    assert!(stats.tri_tests == 0, "no triangle is behind the camera's back");
+}
+
+#[test]
+fn degenerate_triangles_are_never_hit() {
+    let gpu = gpu();
+    // Zero-area triangles (collinear, repeated vertices) right in front of the camera, and one
+    // real triangle behind them.
+    let tris = vec![
+        [[-1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.0]],
+        [[-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, -1.0]],
+        [[0.2, 0.0, 0.2], [0.2, 0.0, 0.2], [0.2, 0.0, 0.2]],
+        [[-1.0, 0.5, -1.0], [1.0, 0.5, -1.0], [0.0, 0.5, 1.0]],
+    ];
+    let prepared = prepare(Model::from_triangles(tris));
+    let camera = Camera {
+        position: [0.0, -3.0, 0.0],
+        focal_point: [0.0, 0.0, 0.0],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 60.0,
+    };
+    let (frame, _) = render(&gpu, &prepared, &camera, 64, 64, Settings::default());
+    let hits: Vec<u32> = frame.pixels.iter().filter(|p| !is_miss(p)).map(|p| p.id).collect();
+    assert!(hits.len() > 100, "the real triangle is seen");
+    assert!(hits.iter().all(|&id| id == 3), "only the real triangle is hit");
+}
