@@ -34,7 +34,7 @@ struct Params {
     nodes_per_block: u32,
     tris_per_block: u32,
     id_word: u32,
-    flags: u32,
+    texels_per_block: u32,
     pad0: u32,
     pad1: u32,
 }
@@ -79,16 +79,8 @@ struct Counter {
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-// Every block as one row of Rgba32Uint texels: block k is row k % rows_per_layer of layer
-// k / rows_per_layer (blocks.rs documents the byte layout).
-@group(0) @binding(1) var blocks: texture_2d_array<u32>;
+// Block storage (binding 1 and `fn texel(block, t) -> vec4<u32>`) comes from store_*.wgsl.
 @group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
-
-fn texel(block: u32, t: u32) -> vec4<u32> {
-    let layer = block / params.rows_per_layer;
-    let row = block - layer * params.rows_per_layer;
-    return textureLoad(blocks, vec2<u32>(t, row), layer, 0);
-}
 
 struct Node {
     lo: vec3<f32>,
@@ -123,13 +115,36 @@ fn tri_block(t: u32) -> vec2<u32> {
 }
 
 fn load_tri(t: u32) -> Tri {
+    // The 9 words of a triangle always span exactly 3 texels, starting at word offset o.
     let bs = tri_block(t);
     let w = bs.y * 9u;
-    var v: array<f32, 9>;
-    for (var i = 0u; i < 9u; i++) {
-        v[i] = bitcast<f32>(word(bs.x, w + i));
+    let t0 = w / 4u;
+    let o = w % 4u;
+    let a = texel(bs.x, t0);
+    let b = texel(bs.x, t0 + 1u);
+    let c = texel(bs.x, t0 + 2u);
+    var v: vec3<f32>;
+    var e: vec3<f32>;
+    var f: vec3<f32>;
+    // Select the 9 words by offset without a dynamically indexed local array (slow on CPUs).
+    if o == 0u {
+        v = bitcast<vec3<f32>>(a.xyz);
+        e = bitcast<vec3<f32>>(vec3(a.w, b.x, b.y));
+        f = bitcast<vec3<f32>>(vec3(b.z, b.w, c.x));
+    } else if o == 1u {
+        v = bitcast<vec3<f32>>(a.yzw);
+        e = bitcast<vec3<f32>>(b.xyz);
+        f = bitcast<vec3<f32>>(vec3(b.w, c.x, c.y));
+    } else if o == 2u {
+        v = bitcast<vec3<f32>>(vec3(a.z, a.w, b.x));
+        e = bitcast<vec3<f32>>(vec3(b.y, b.z, b.w));
+        f = bitcast<vec3<f32>>(c.xyz);
+    } else {
+        v = bitcast<vec3<f32>>(vec3(a.w, b.x, b.y));
+        e = bitcast<vec3<f32>>(vec3(b.z, b.w, c.x));
+        f = bitcast<vec3<f32>>(c.yzw);
     }
-    return Tri(vec3(v[0], v[1], v[2]), vec3(v[3], v[4], v[5]), vec3(v[6], v[7], v[8]));
+    return Tri(v, e, f);
 }
 
 fn load_prim_id(t: u32) -> u32 {

@@ -35,7 +35,7 @@ fn main() {
     put(p.width); put(p.height); put(p.tiles_x); put(p.first_tile);
     put(p.batch_rays); put(p.step_budget); put(p.stack_size); put(p.mesh_count);
     put(p.node_blocks); put(p.rows_per_layer); put(p.nodes_per_block); put(p.tris_per_block);
-    put(p.id_word); put(p.flags); put(p.pad0); put(p.pad1);
+    put(p.id_word); put(p.texels_per_block); put(p.pad0); put(p.pad1);
     for (var i = 0u; i < p.pad0; i++) {
         let n = load_node(i);
         putf(n.lo.x); putf(n.lo.y); putf(n.lo.z);

@@ -37,6 +37,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let base = ray_index * params.stack_size;
         var iters = 0u;
         var tests = 0u;
+        // The node being visited, already loaded: a child chosen at its parent is not read twice.
+        var cur: Node;
+        var have = false;
         loop {
             if r.node == NONE {
                 if r.sp == 0u {
@@ -52,6 +55,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 // Entries farther than the closest hit found since they were pushed are culled.
                 if bitcast<f32>(e.y) <= r.t {
                     r.node = e.x;
+                    have = false;
                 }
                 continue;
             }
@@ -59,10 +63,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 break;
             }
             iters += 1u;
-            let n = load_node(r.node);
-            if n.count == 0u {
-                let a = load_node(n.index);
-                let b = load_node(n.index + 1u);
+            if !have {
+                cur = load_node(r.node);
+            }
+            if cur.count == 0u {
+                let a = load_node(cur.index);
+                let b = load_node(cur.index + 1u);
                 let ta = box_entry(a.lo, a.hi, org, inv, r.t);
                 let tb = box_entry(b.lo, b.hi, org, inv, r.t);
                 if ta >= 0.0 && tb >= 0.0 {
@@ -71,29 +77,42 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.status = OVERFLOW;
                         break;
                     }
-                    let far = select(n.index, n.index + 1u, a_first);
+                    let far = select(cur.index, cur.index + 1u, a_first);
                     stacks[base + r.sp] = vec2(far, bitcast<u32>(select(ta, tb, a_first)));
                     r.sp += 1u;
-                    r.node = select(n.index + 1u, n.index, a_first);
+                    if a_first {
+                        r.node = cur.index;
+                        cur = a;
+                    } else {
+                        r.node = cur.index + 1u;
+                        cur = b;
+                    }
+                    have = true;
                 } else if ta >= 0.0 {
-                    r.node = n.index;
+                    r.node = cur.index;
+                    cur = a;
+                    have = true;
                 } else if tb >= 0.0 {
-                    r.node = n.index + 1u;
+                    r.node = cur.index + 1u;
+                    cur = b;
+                    have = true;
                 } else {
                     r.node = NONE;
+                    have = false;
                 }
             } else {
                 // Leaf: the triangle loop's iterations count against the same budget.
-                iters += n.count;
-                tests += n.count;
-                for (var k = 0u; k < n.count; k++) {
-                    let t = intersect(load_tri(n.index + k), org, sh, r.t);
+                iters += cur.count;
+                tests += cur.count;
+                for (var k = 0u; k < cur.count; k++) {
+                    let t = intersect(load_tri(cur.index + k), org, sh, r.t);
                     if t > 0.0 {
                         r.t = t;
-                        r.hit = n.index + k;
+                        r.hit = cur.index + k;
                     }
                 }
                 r.node = NONE;
+                have = false;
             }
         }
         r.steps += iters;

@@ -5,6 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
+use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, MAX_STEP_BUDGET, Settings};
 use dcrt::output::{self, Aov};
 use dcrt::render::{Prepared, render_frame};
@@ -52,6 +53,9 @@ struct GpuArgs {
     /// Block size in bytes.
     #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
     block_size: u32,
+    /// Where the GPU keeps blocks.
+    #[arg(long, value_enum, default_value_t = Store::Texture)]
+    store: Store,
 }
 
 #[derive(Args)]
@@ -93,6 +97,9 @@ struct BenchArgs {
     /// Also build and trace with every obvhs preset, side by side.
     #[arg(long)]
     bvh_presets: bool,
+    /// Trace with both block stores (texture, buffer), side by side.
+    #[arg(long)]
+    stores: bool,
     /// One JSON object on stdout instead of the table.
     #[arg(long)]
     json: bool,
@@ -120,6 +127,7 @@ fn main() -> ExitCode {
 fn settings(g: &GpuArgs) -> Settings {
     Settings {
         step_budget: g.step_budget,
+        store: g.store,
         ..Settings::default()
     }
 }
@@ -167,7 +175,9 @@ fn render(a: RenderArgs) -> Result<()> {
 
 fn check_budget(b: u32) -> Result<()> {
     if !(1..=MAX_STEP_BUDGET).contains(&b) {
-        bail!("--step-budget {b} is out of range 1..={MAX_STEP_BUDGET} (lavapipe stops loops at 65,535)");
+        bail!(
+            "--step-budget {b} is out of range 1..={MAX_STEP_BUDGET} (lavapipe stops loops at 65,535)"
+        );
     }
     Ok(())
 }
@@ -223,6 +233,7 @@ fn info(adapter: Option<&str>) -> Result<()> {
 #[derive(serde::Serialize)]
 struct BenchRow {
     preset: String,
+    store: Store,
     bvh_build_ms: f64,
     bvh_depth: u32,
     trace_ms_median: f64,
@@ -231,6 +242,9 @@ struct BenchRow {
     mrays_per_s: f64,
     steps_per_ray: f64,
     tri_tests_per_ray: f64,
+    /// Of the last run: share of the frame in raygen + trace rounds, and in shade + readback.
+    trace_share: f64,
+    shade_share: f64,
 }
 
 #[derive(serde::Serialize)]
@@ -293,35 +307,52 @@ fn bench(a: BenchArgs) -> Result<()> {
     };
     let mut rows = Vec::new();
     let rays = f64::from(a.width) * f64::from(a.height);
+    let stores = if a.stores {
+        Store::ALL.to_vec()
+    } else {
+        vec![a.gpu.store]
+    };
     for preset in presets {
         let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
-        let mut tracer = prepared.tracer(&gpu, settings(&a.gpu))?;
-        // Warm-up: pipeline compilation and first-touch of buffers.
-        let (_, _) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
-        let mut times = Vec::new();
-        let mut last = None;
-        for _ in 0..a.runs {
-            let (_, s) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
-            times.push(s.seconds * 1e3);
-            last = Some(s);
+        for &store in &stores {
+            let s = Settings {
+                store,
+                ..settings(&a.gpu)
+            };
+            let mut tracer = prepared.tracer(&gpu, s)?;
+            // Warm-up: pipeline compilation and first-touch of buffers.
+            let (_, _) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
+            let mut times = Vec::new();
+            let mut last = None;
+            for _ in 0..a.runs {
+                let (_, s) =
+                    render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
+                times.push(s.seconds * 1e3);
+                last = Some(s);
+            }
+            let s = last.unwrap_or_default();
+            let med = median(&mut times);
+            rows.push(BenchRow {
+                preset: format!("{preset:?}").to_lowercase(),
+                store,
+                bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
+                bvh_depth: prepared.bvh.depth,
+                trace_ms_median: med,
+                trace_ms_min: times[0],
+                trace_ms_max: times[times.len() - 1],
+                mrays_per_s: rays / (med * 1e-3) / 1e6,
+                steps_per_ray: s.steps as f64 / rays,
+                tri_tests_per_ray: s.tri_tests as f64 / rays,
+                trace_share: s.trace_seconds / s.seconds,
+                shade_share: s.shade_seconds / s.seconds,
+            });
         }
-        let s = last.unwrap_or_default();
-        let med = median(&mut times);
-        rows.push(BenchRow {
-            preset: format!("{preset:?}").to_lowercase(),
-            bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
-            bvh_depth: prepared.bvh.depth,
-            trace_ms_median: med,
-            trace_ms_min: times[0],
-            trace_ms_max: times[times.len() - 1],
-            mrays_per_s: rays / (med * 1e-3) / 1e6,
-            steps_per_ray: s.steps as f64 / rays,
-            tri_tests_per_ray: s.tri_tests as f64 / rays,
-        });
     }
     let main_row = rows
         .iter()
-        .find(|r| r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase())
+        .find(|r| {
+            r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase() && r.store == a.gpu.store
+        })
         .unwrap_or(&rows[0]);
     let report = BenchReport {
         adapter: gpu.describe(),
@@ -347,20 +378,33 @@ fn bench(a: BenchArgs) -> Result<()> {
         report.scene, report.triangles, report.width, report.height, report.runs
     );
     println!(
-        "{:<9} {:>10} {:>6} {:>12} {:>10} {:>10} {:>9} {:>9}",
-        "preset", "build ms", "depth", "trace ms", "min", "max", "Mrays/s", "steps/ray"
+        "{:<9} {:<8} {:>10} {:>6} {:>12} {:>10} {:>10} {:>9} {:>9} {:>7} {:>7}",
+        "preset",
+        "store",
+        "build ms",
+        "depth",
+        "trace ms",
+        "min",
+        "max",
+        "Mrays/s",
+        "steps/ray",
+        "trace%",
+        "shade%"
     );
     for r in &report.rows {
         println!(
-            "{:<9} {:>10.1} {:>6} {:>12.1} {:>10.1} {:>10.1} {:>9.2} {:>9.1}",
+            "{:<9} {:<8} {:>10.1} {:>6} {:>12.1} {:>10.1} {:>10.1} {:>9.2} {:>9.1} {:>7.0} {:>7.0}",
             r.preset,
+            format!("{:?}", r.store).to_lowercase(),
             r.bvh_build_ms,
             r.bvh_depth,
             r.trace_ms_median,
             r.trace_ms_min,
             r.trace_ms_max,
             r.mrays_per_s,
-            r.steps_per_ray
+            r.steps_per_ray,
+            r.trace_share * 100.0,
+            r.shade_share * 100.0
         );
     }
     Ok(())

@@ -26,7 +26,7 @@ pub struct Params {
     pub nodes_per_block: u32,
     pub tris_per_block: u32,
     pub id_word: u32,
-    pub flags: u32,
+    pub texels_per_block: u32,
     pub pad0: u32,
     pub pad1: u32,
 }

@@ -8,7 +8,7 @@
 
 use super::Gpu;
 use super::layout::{Counter, MeshInfo, Params, Pixel, RayState, Stats};
-use super::shaders;
+use super::shaders::{self, Store};
 use crate::blocks::Blocks;
 use crate::error::{Error, Result};
 use crate::scene::{CameraBasis, Model};
@@ -33,6 +33,8 @@ pub struct Settings {
     pub step_budget: u32,
     /// Upper bound on rays per batch (rounded down to whole tiles); memory limits may lower it.
     pub max_batch_rays: u32,
+    /// Where the GPU keeps the blocks.
+    pub store: Store,
 }
 
 impl Default for Settings {
@@ -40,6 +42,7 @@ impl Default for Settings {
         Settings {
             step_budget: DEFAULT_STEP_BUDGET,
             max_batch_rays: DEFAULT_MAX_BATCH_RAYS,
+            store: Store::Texture,
         }
     }
 }
@@ -55,7 +58,12 @@ pub struct FrameStats {
     pub max_live_rounds: u32,
     pub steps: u64,
     pub tri_tests: u64,
+    /// Wall time of the whole frame, and of its parts: ray generation and trace rounds until the
+    /// last live count came back; shading and the pixel readback (including the copy into the
+    /// frame).
     pub seconds: f64,
+    pub trace_seconds: f64,
+    pub shade_seconds: f64,
 }
 
 /// A traced frame: one `Pixel` per image pixel, row-major, y down.
@@ -98,7 +106,22 @@ pub struct Tracer<'g> {
     batch: Batch,
     settings: Settings,
     layouts: Layouts,
-    _blocks: wgpu::Texture,
+    _blocks: BlockStore,
+}
+
+/// The GPU copy of the blocks, kept alive while the tracer's bind group uses it.
+enum BlockStore {
+    Texture(wgpu::TextureView),
+    Buffer(wgpu::Buffer),
+}
+
+impl BlockStore {
+    fn resource(&self) -> wgpu::BindingResource<'_> {
+        match self {
+            BlockStore::Texture(view) => wgpu::BindingResource::TextureView(view),
+            BlockStore::Buffer(b) => b.as_entire_binding(),
+        }
+    }
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -147,7 +170,20 @@ struct Layouts {
     probe: wgpu::BindGroupLayout,
 }
 
-fn layouts(gpu: &Gpu) -> Layouts {
+fn layouts(gpu: &Gpu, store: Store) -> Layouts {
+    let blocks = match store {
+        Store::Texture => wgpu::BindGroupLayoutEntry {
+            binding: 1,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Uint,
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            count: None,
+        },
+        Store::Buffer => storage(1, true),
+    };
     let scene = bgl(
         gpu,
         "scene",
@@ -162,16 +198,7 @@ fn layouts(gpu: &Gpu) -> Layouts {
                 },
                 count: None,
             },
-            wgpu::BindGroupLayoutEntry {
-                binding: 1,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Uint,
-                    view_dimension: wgpu::TextureViewDimension::D2Array,
-                    multisampled: false,
-                },
-                count: None,
-            },
+            blocks,
             storage(2, true),
         ],
     );
@@ -200,6 +227,7 @@ fn layouts(gpu: &Gpu) -> Layouts {
 
 fn pipeline(
     gpu: &Gpu,
+    store: Store,
     name: &str,
     scene: &wgpu::BindGroupLayout,
     own: &wgpu::BindGroupLayout,
@@ -208,7 +236,7 @@ fn pipeline(
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(shaders::source(name).into()),
+            source: wgpu::ShaderSource::Wgsl(shaders::source(name, store).into()),
         });
     let layout = gpu
         .device
@@ -323,6 +351,29 @@ fn upload_blocks(gpu: &Gpu, blocks: &Blocks) -> Result<(wgpu::Texture, u32)> {
     Ok((texture, rows))
 }
 
+/// Uploads all blocks into one storage buffer.
+fn upload_buffer(gpu: &Gpu, blocks: &Blocks) -> Result<wgpu::Buffer> {
+    let limit = gpu
+        .limits
+        .max_storage_buffer_binding_size
+        .min(gpu.limits.max_buffer_size);
+    if blocks.bytes() > limit {
+        return Err(Error::Gpu(format!(
+            "the model's {} MiB of blocks exceed the adapter's {} MiB storage buffer binding; \
+             use the texture store",
+            blocks.bytes() >> 20,
+            limit >> 20
+        )));
+    }
+    Ok(gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("blocks"),
+            contents: bytemuck::cast_slice(&blocks.words),
+            usage: wgpu::BufferUsages::STORAGE,
+        }))
+}
+
 impl<'g> Tracer<'g> {
     /// Uploads a model's blocks. `depth` is the BVH depth (it sizes the traversal stack).
     pub fn new(
@@ -338,19 +389,26 @@ impl<'g> Tracer<'g> {
                 settings.step_budget
             )));
         }
-        let l = layouts(gpu);
+        let st = settings.store;
+        let l = layouts(gpu, st);
         let kernels = Kernels {
-            raygen: pipeline(gpu, "raygen", &l.scene, &l.raygen),
-            trace: pipeline(gpu, "trace", &l.scene, &l.trace),
-            args: pipeline(gpu, "args", &l.scene, &l.args),
-            shade: pipeline(gpu, "shade", &l.scene, &l.shade),
-            probe: pipeline(gpu, "probe", &l.scene, &l.probe),
+            raygen: pipeline(gpu, st, "raygen", &l.scene, &l.raygen),
+            trace: pipeline(gpu, st, "trace", &l.scene, &l.trace),
+            args: pipeline(gpu, st, "args", &l.scene, &l.args),
+            shade: pipeline(gpu, st, "shade", &l.scene, &l.shade),
+            probe: pipeline(gpu, st, "probe", &l.scene, &l.probe),
         };
-        let (texture, rows_per_layer) = upload_blocks(gpu, blocks)?;
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let (store, rows_per_layer) = match st {
+            Store::Texture => {
+                let (texture, rows) = upload_blocks(gpu, blocks)?;
+                let view = texture.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::D2Array),
+                    ..Default::default()
+                });
+                (BlockStore::Texture(view), rows)
+            }
+            Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, blocks)?), 0),
+        };
         let meshes: Vec<MeshInfo> = model
             .colors
             .iter()
@@ -378,6 +436,7 @@ impl<'g> Tracer<'g> {
             nodes_per_block: blocks.format.nodes_per_block(),
             tris_per_block: blocks.format.tris_per_block(),
             id_word: blocks.format.id_word(),
+            texels_per_block: blocks.format.texels(),
             ..Params::default()
         };
         let params_buf = gpu
@@ -397,7 +456,7 @@ impl<'g> Tracer<'g> {
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&view),
+                    resource: store.resource(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 2,
@@ -415,7 +474,7 @@ impl<'g> Tracer<'g> {
             batch,
             settings,
             layouts: l,
-            _blocks: texture,
+            _blocks: store,
         })
     }
 
@@ -547,8 +606,12 @@ impl<'g> Tracer<'g> {
             let n_tiles = tiles_per_batch.min(tiles - first);
             self.params.first_tile = first;
             self.params.batch_rays = n_tiles * TILE_RAYS;
+            let t = Instant::now();
             self.trace_batch(&mut stats)?;
+            let t2 = Instant::now();
+            stats.trace_seconds += (t2 - t).as_secs_f64();
             self.read_pixels(first, n_tiles, &mut frame)?;
+            stats.shade_seconds += t2.elapsed().as_secs_f64();
             stats.batches += 1;
             first += n_tiles;
         }

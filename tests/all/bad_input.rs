@@ -23,7 +23,11 @@ fn fails(dir: &TempDir, scene: &std::path::Path, extra: &[&str], needles: &[&str
     let r = dcrt(&args);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success(), "should fail: {err}");
-    assert_eq!(r.status.code(), Some(1), "a clean error exit, not a panic: {err}");
+    assert_eq!(
+        r.status.code(),
+        Some(1),
+        "a clean error exit, not a panic: {err}"
+    );
     for n in needles {
         assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
     }
@@ -38,7 +42,12 @@ const PLY_HEADER: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty floa
 #[test]
 fn missing_and_unreadable_files() {
     let d = TempDir::new("missing");
-    fails(&d, &d.path("nope.toml"), &[], &["nope.toml", "No such file"]);
+    fails(
+        &d,
+        &d.path("nope.toml"),
+        &[],
+        &["nope.toml", "No such file"],
+    );
     // A directory where a file should be cannot be read.
     std::fs::create_dir_all(d.path("dir.toml")).unwrap();
     fails(&d, &d.path("dir.toml"), &[], &["dir.toml"]);
@@ -47,7 +56,10 @@ fn missing_and_unreadable_files() {
         format!("{CAMERA}[[mesh]]\nfile = \"gone.ply\"\n"),
     );
     fails(&d, &s, &[], &["gone.ply", "No such file"]);
-    let s = d.write("scene2.toml", format!("{CAMERA}[[mesh]]\nfile = \"x.stl\"\n"));
+    let s = d.write(
+        "scene2.toml",
+        format!("{CAMERA}[[mesh]]\nfile = \"x.stl\"\n"),
+    );
     d.write("x.stl", "solid");
     fails(&d, &s, &[], &["x.stl", "unknown mesh format"]);
 }
@@ -56,7 +68,9 @@ fn missing_and_unreadable_files() {
 fn broken_mesh_files() {
     let d = TempDir::new("broken");
     // Truncated binary PLY: the header promises 3 vertices, the data holds 1.
-    let mut ply = PLY_HEADER.replace("ascii", "binary_little_endian").into_bytes();
+    let mut ply = PLY_HEADER
+        .replace("ascii", "binary_little_endian")
+        .into_bytes();
     ply.extend(bytemuck::cast_slice::<f32, u8>(&[0.0, 0.0, 0.0]));
     let s = scene_with_mesh(&d, "trunc.ply", &ply);
     fails(&d, &s, &[], &["trunc.ply", "vertex"]);
@@ -110,12 +124,37 @@ fn scenes_without_triangles() {
 fn bad_scene_files() {
     let d = TempDir::new("toml");
     let cases = [
-        ("unknown.toml", format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\nshiny = 1\n"), "shiny"),
-        ("type.toml", format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = \"many\"\n"), "triangles"),
-        ("syntax.toml", "[camera\nposition = 1\n".to_string(), "line 1"),
-        ("zero.toml", CAMERA.replace("width = 16", "width = 0") + "[[mesh]]\ngenerator = \"rm\"\n", "out of range"),
-        ("huge.toml", CAMERA.replace("width = 16", "width = 1000000") + "[[mesh]]\ngenerator = \"rm\"\n", "out of range"),
-        ("cam.toml", CAMERA.replace("view_angle = 40", "view_angle = 200") + "[[mesh]]\ngenerator = \"rm\"\n", "view_angle"),
+        (
+            "unknown.toml",
+            format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\nshiny = 1\n"),
+            "shiny",
+        ),
+        (
+            "type.toml",
+            format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = \"many\"\n"),
+            "triangles",
+        ),
+        (
+            "syntax.toml",
+            "[camera\nposition = 1\n".to_string(),
+            "line 1",
+        ),
+        (
+            "zero.toml",
+            CAMERA.replace("width = 16", "width = 0") + "[[mesh]]\ngenerator = \"rm\"\n",
+            "out of range",
+        ),
+        (
+            "huge.toml",
+            CAMERA.replace("width = 16", "width = 1000000") + "[[mesh]]\ngenerator = \"rm\"\n",
+            "out of range",
+        ),
+        (
+            "cam.toml",
+            CAMERA.replace("view_angle = 40", "view_angle = 200")
+                + "[[mesh]]\ngenerator = \"rm\"\n",
+            "view_angle",
+        ),
     ];
     for (name, text, needle) in cases {
         let s = d.write(name, text);
@@ -131,7 +170,12 @@ fn bad_command_line_values() {
         format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
     );
     fails(&d, &s, &["--width", "0"], &["out of range"]);
-    fails(&d, &s, &["--width", "100000", "--height", "100000"], &["out of range"]);
+    fails(
+        &d,
+        &s,
+        &["--width", "100000", "--height", "100000"],
+        &["out of range"],
+    );
     fails(&d, &s, &["--step-budget", "70000"], &["--step-budget"]);
     fails(&d, &s, &["--aov", "depth"], &["--exr"]);
     let missing_dir = d.path("no/such/dir/x.exr");

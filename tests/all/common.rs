@@ -35,9 +35,7 @@ pub fn render(
     settings: Settings,
 ) -> (Frame, FrameStats) {
     let mut tracer = prepared.tracer(gpu, settings).unwrap();
-    tracer
-        .render(&camera.basis(w, h), [0.1, 0.2, 0.3])
-        .unwrap()
+    tracer.render(&camera.basis(w, h), [0.1, 0.2, 0.3]).unwrap()
 }
 
 /// The reference hit of every pixel, through the same pixel-centre rays.

@@ -36,7 +36,11 @@ fn check(name: &str, model: Model, camera: Camera) {
                     .map(|a| (f64::from(p.normal[a]) - h.normal[a]).powi(2))
                     .sum::<f64>()
                     .sqrt();
-                assert!(dn < 1e-4, "{name}: normal differs by {dn} at prim {}", h.prim);
+                assert!(
+                    dn < 1e-4,
+                    "{name}: normal differs by {dn} at prim {}",
+                    h.prim
+                );
             }
         }
     }
@@ -45,8 +49,14 @@ fn check(name: &str, model: Model, camera: Camera) {
          id differs {id_bad}, worst relative depth error {worst_depth:.2e}"
     );
     assert!(both_hit > n / 10, "{name}: the view should see the model");
-    assert!(hitmiss_bad as f64 <= n as f64 * 1e-4, "{name}: hit/miss differ on {hitmiss_bad}");
-    assert!(id_bad as f64 <= n as f64 * 1e-3, "{name}: ids differ on {id_bad}");
+    assert!(
+        hitmiss_bad as f64 <= n as f64 * 1e-4,
+        "{name}: hit/miss differ on {hitmiss_bad}"
+    );
+    assert!(
+        id_bad as f64 <= n as f64 * 1e-3,
+        "{name}: ids differ on {id_bad}"
+    );
     assert!(worst_depth <= 1e-5, "{name}: depth error {worst_depth}");
 }
 

@@ -45,7 +45,6 @@ fn every_member_reads_back_through_the_shader() {
         batch_rays: 105,
         step_budget: 106,
         stack_size: 107,
-        flags: 108,
         pad0: nodes,
         pad1: tris,
         ..base

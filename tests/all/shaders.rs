@@ -4,9 +4,11 @@ use dcrt::gpu::shaders;
 
 #[test]
 fn every_kernel_validates_with_naga() {
-    for (name, _) in shaders::KERNELS {
-        if let Err(e) = shaders::validate(name) {
-            panic!("kernel {name} does not validate:\n{e}");
+    for store in shaders::Store::ALL {
+        for (name, _) in shaders::KERNELS {
+            if let Err(e) = shaders::validate(name, store) {
+                panic!("kernel {name} ({store:?}) does not validate:\n{e}");
+            }
         }
     }
 }

@@ -3,6 +3,7 @@
 
 use crate::common::*;
 use dcrt::gpu::layout::status;
+use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
@@ -26,12 +27,16 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     let small = Settings {
         step_budget: 5,
         max_batch_rays: 64 * 48,
+        ..Settings::default()
     };
     let mut tracer = prepared.tracer(&gpu, small).unwrap();
     let (b, sb) = tracer
         .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
         .unwrap();
-    assert!(sa.max_live_rounds <= 2, "the default budget finishes at once");
+    assert!(
+        sa.max_live_rounds <= 2,
+        "the default budget finishes at once"
+    );
     let max_steps = sb.steps as f64 / sb.rays as f64;
     assert!(
         sb.max_live_rounds > 4,
@@ -45,7 +50,10 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     }
     // The last batch's rays all finished (none left suspended or overflowed).
     let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
-    assert!(rays.iter().all(|r| r.status == status::DONE || r.status == status::OUTSIDE));
+    assert!(
+        rays.iter()
+            .all(|r| r.status == status::DONE || r.status == status::OUTSIDE)
+    );
     assert!(rays.iter().any(|r| r.steps > 5 * 4));
 }
 
@@ -85,7 +93,10 @@ fn looking_away_misses_everything() {
         assert_eq!(p.rgb, [0.1, 0.2, 0.3]);
         assert_eq!(p.normal, [0.0; 3]);
     }
-    assert!(stats.tri_tests == 0, "no triangle is behind the camera's back");
+    assert!(
+        stats.tri_tests == 0,
+        "no triangle is behind the camera's back"
+    );
 }
 
 #[test]
@@ -107,7 +118,36 @@ fn degenerate_triangles_are_never_hit() {
         view_angle: 60.0,
     };
     let (frame, _) = render(&gpu, &prepared, &camera, 64, 64, Settings::default());
-    let hits: Vec<u32> = frame.pixels.iter().filter(|p| !is_miss(p)).map(|p| p.id).collect();
+    let hits: Vec<u32> = frame
+        .pixels
+        .iter()
+        .filter(|p| !is_miss(p))
+        .map(|p| p.id)
+        .collect();
     assert!(hits.len() > 100, "the real triangle is seen");
-    assert!(hits.iter().all(|&id| id == 3), "only the real triangle is hit");
+    assert!(
+        hits.iter().all(|&id| id == 3),
+        "only the real triangle is hit"
+    );
+}
+
+#[test]
+fn buffer_and_texture_stores_give_the_same_image() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let frames: Vec<_> = Store::ALL
+        .iter()
+        .map(|&store| {
+            let s = Settings {
+                store,
+                ..Settings::default()
+            };
+            render(&gpu, &prepared, &camera, 80, 60, s).0
+        })
+        .collect();
+    assert!(frames[0].pixels.iter().any(|p| !is_miss(p)));
+    for (p, q) in frames[0].pixels.iter().zip(&frames[1].pixels) {
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q));
+    }
 }

@@ -1,0 +1,7 @@
+// Blocks in one storage buffer of 16-byte words, block after block (blocks.rs documents the
+// byte layout).
+@group(0) @binding(1) var<storage, read> blocks: array<vec4<u32>>;
+
+fn texel(block: u32, t: u32) -> vec4<u32> {
+    return blocks[block * params.texels_per_block + t];
+}
