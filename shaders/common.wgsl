@@ -48,7 +48,15 @@ struct RayState {
     node: u32,    // node to visit next, or NONE to pop the stack
     sp: u32,      // stack entries in use
     status: u32,
-    steps: u32,   // traversal steps taken so far
+    steps: u32,   // loop iterations taken so far
+    // The content of `node` when already read (`cur_count` NONE when not): a resumed ray need
+    // not read its parent's block again.
+    cur_index: u32,
+    cur_count: u32,
+    // Recorded when the closest hit is found, while its block is at hand: shading then needs no
+    // block.
+    prim: u32,
+    nx: f32, ny: f32, nz: f32,
 }
 
 // Mirrors gpu::layout::MeshInfo.

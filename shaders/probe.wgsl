@@ -54,6 +54,8 @@ fn main() {
         putf(r.ox); putf(r.oy); putf(r.oz); putf(r.t);
         putf(r.dx); putf(r.dy); putf(r.dz); put(r.hit);
         put(r.node); put(r.sp); put(r.status); put(r.steps);
+        put(r.cur_index); put(r.cur_count); put(r.prim);
+        putf(r.nx); putf(r.ny); putf(r.nz);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];

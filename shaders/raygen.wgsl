@@ -28,7 +28,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let sy = 1.0 - 2.0 * (f32(py) + 0.5) / f32(params.height);
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
-        var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u);
+        var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u, 0u, NONE, NONE,
+                         0.0, 0.0, 0.0);
         if px >= params.width || py >= params.height || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else {

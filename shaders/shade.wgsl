@@ -32,9 +32,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var p = Pixel(params.background.x, params.background.y, params.background.z,
                   POS_INF, NONE, 0.0, 0.0, 0.0);
     if r.hit != NONE && r.status == DONE {
-        let tri = load_tri(r.hit);
-        let n = normalize(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
-        let prim = load_prim_id(r.hit);
+        let n = vec3(r.nx, r.ny, r.nz);
+        let prim = r.prim;
         let c = meshes[mesh_of(prim)].color.xyz * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, ray_dir(r))));
         p = Pixel(c.x, c.y, c.z, bitcast<u32>(r.t), prim, n.x, n.y, n.z);
     }

@@ -37,9 +37,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let base = ray_index * params.stack_size;
         var iters = 0u;
         var tests = 0u;
-        // The node being visited, already loaded: a child chosen at its parent is not read twice.
+        // The node being visited, already read when `have`: a child chosen at its parent is not
+        // read twice.
         var cur: Node;
-        var have = false;
+        var have = r.cur_count != NONE;
+        cur.index = r.cur_index;
+        cur.count = r.cur_count;
         loop {
             if r.node == NONE {
                 if r.sp == 0u {
@@ -109,12 +112,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     if t > 0.0 {
                         r.t = t;
                         r.hit = cur.index + k;
+                        let tri = load_tri(r.hit);
+                        let n = normalize(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
+                        r.nx = n.x;
+                        r.ny = n.y;
+                        r.nz = n.z;
+                        r.prim = load_prim_id(r.hit);
                     }
                 }
                 r.node = NONE;
                 have = false;
             }
         }
+        r.cur_index = cur.index;
+        r.cur_count = select(NONE, cur.count, have && r.node != NONE);
         r.steps += iters;
         rays[ray_index] = r;
         again = r.status == LIVE;

@@ -44,8 +44,14 @@ pub struct RayState {
     pub sp: u32,
     pub status: u32,
     pub steps: u32,
+    /// Content of `node` when already read; `cur_count` is `NONE` when not.
+    pub cur_index: u32,
+    pub cur_count: u32,
+    /// Primitive id and unit geometric normal of the closest hit.
+    pub prim: u32,
+    pub normal: [f32; 3],
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 48);
+const _: () = assert!(std::mem::size_of::<RayState>() == 72);
 
 /// `RayState.status` values.
 pub mod status {

@@ -26,6 +26,7 @@ pub const DEFAULT_STEP_BUDGET: u32 = 4096;
 /// as an error rather than traced wrongly.
 pub const MAX_STACK: u32 = 256;
 const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
+const RAY_BYTES: u64 = std::mem::size_of::<RayState>() as u64;
 
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
@@ -484,7 +485,7 @@ impl<'g> Tracer<'g> {
             .limits
             .max_storage_buffer_binding_size
             .min(gpu.limits.max_buffer_size);
-        let per_ray_max = (u64::from(stack_size) * 8).max(48);
+        let per_ray_max = (u64::from(stack_size) * 8).max(RAY_BYTES);
         let by_memory = limit / per_ray_max;
         let by_dispatch = u64::from(gpu.limits.max_compute_workgroups_per_dimension) * 64;
         let rays = u64::from(max_rays).min(by_memory).min(by_dispatch);
@@ -497,7 +498,7 @@ impl<'g> Tracer<'g> {
         }
         let n = u64::from(rays_cap);
         use wgpu::BufferUsages as U;
-        let rays_buf = buffer(gpu, "rays", n * 48, U::STORAGE | U::COPY_SRC);
+        let rays_buf = buffer(gpu, "rays", n * RAY_BYTES, U::STORAGE | U::COPY_SRC);
         let stacks = buffer(gpu, "stacks", n * u64::from(stack_size) * 8, U::STORAGE);
         let live = [
             buffer(gpu, "live0", n * 4, U::STORAGE),
@@ -746,7 +747,7 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 36 + 8 * params.pad0 + 10 * params.pad1 + 24 + 8 * params.mesh_count;
+        let words = 36 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
         let out = buffer(
             gpu,
             "probe out",

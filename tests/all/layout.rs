@@ -59,6 +59,10 @@ fn every_member_reads_back_through_the_shader() {
             sp: 10,
             status: 11,
             steps: 12,
+            cur_index: 13,
+            cur_count: 14,
+            prim: 15,
+            normal: [16.5, 17.5, 18.5],
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -69,6 +73,10 @@ fn every_member_reads_back_through_the_shader() {
             sp: 78,
             status: 79,
             steps: 80,
+            cur_index: 81,
+            cur_count: u32::MAX,
+            prim: 83,
+            normal: [-0.5, 0.25, 1e-3],
         },
     ];
     let out = tracer.probe(params, &rays).unwrap();
