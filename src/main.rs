@@ -8,7 +8,7 @@ use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, MAX_STEP_BUDGET, Settings};
 use dcrt::output::{self, Aov};
-use dcrt::render::{Prepared, render_frame};
+use dcrt::render::{Loaded, Prepared, render_frame};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 use std::path::{Path, PathBuf};
@@ -35,8 +35,23 @@ enum Command {
         #[arg(long)]
         adapter: Option<String>,
     },
+    /// Build the BVH and blocks once and write them to a block file (.dcb).
+    Prepare(PrepareArgs),
     /// Measure BVH build time and primary-ray throughput.
     Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct PrepareArgs {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Output block file.
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    bvh_preset: Preset,
+    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
+    block_size: u32,
 }
 
 #[derive(Args, Clone)]
@@ -60,7 +75,7 @@ struct GpuArgs {
 
 #[derive(Args)]
 struct RenderArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML) or prepared block file (.dcb).
     scene: PathBuf,
     /// Output PNG.
     #[arg(short, long, default_value = "out.png")]
@@ -113,6 +128,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render(a) => render(a),
         Command::Info { adapter } => info(adapter.as_deref()),
+        Command::Prepare(a) => prepare(a),
         Command::Bench(a) => bench(a),
     };
     match result {
@@ -134,10 +150,6 @@ fn settings(g: &GpuArgs) -> Settings {
 
 fn render(a: RenderArgs) -> Result<()> {
     check_budget(a.gpu.step_budget)?;
-    let scene = Scene::load(&a.scene)?;
-    let width = a.width.unwrap_or(scene.width);
-    let height = a.height.unwrap_or(scene.height);
-    check_image_size(width, height)?;
     if !a.aov.is_empty() && a.exr.is_none() {
         bail!("--aov needs --exr FILE: the AOVs are EXR channels");
     }
@@ -145,21 +157,31 @@ fn render(a: RenderArgs) -> Result<()> {
         check_writable(out)?;
     }
     let format = Format::new(a.gpu.block_size)?;
-    let prepared = Prepared::new(&scene, a.gpu.bvh_preset, format)?;
+    let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let width = a.width.unwrap_or(loaded.width);
+    let height = a.height.unwrap_or(loaded.height);
+    check_image_size(width, height)?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
-    let camera = scene.camera_or_default(&prepared.model);
-    let mut tracer = prepared.tracer(&gpu, settings(&a.gpu))?;
-    let (frame, stats) = render_frame(&mut tracer, &camera, width, height, scene.background)?;
+    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu))?;
+    let (frame, stats) = render_frame(
+        &mut tracer,
+        &loaded.camera,
+        width,
+        height,
+        loaded.background,
+    )?;
     output::write_png(&a.output, &frame)?;
     if let Some(exr) = &a.exr {
         output::write_exr(exr, &frame, &a.aov)?;
     }
     eprintln!(
-        "{} triangles, BVH {:.0} ms (depth {}), {}x{} traced in {:.1} ms ({} rounds), wrote {}{}",
-        prepared.model.triangles.len(),
-        (prepared.bvh.build_time + prepared.bvh.layout_time).as_secs_f64() * 1e3,
-        prepared.bvh.depth,
+        "{} triangles{}, {}x{} traced in {:.1} ms ({} rounds), wrote {}{}",
+        loaded.triangles,
+        loaded
+            .build_seconds
+            .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
+            .unwrap_or_default(),
         width,
         height,
         stats.seconds * 1e3,
@@ -169,6 +191,31 @@ fn render(a: RenderArgs) -> Result<()> {
             .as_ref()
             .map(|p| format!(" and {}", p.display()))
             .unwrap_or_default()
+    );
+    Ok(())
+}
+
+fn prepare(a: PrepareArgs) -> Result<()> {
+    check_writable(&a.output)?;
+    let format = Format::new(a.block_size)?;
+    let scene = Scene::load(&a.scene)?;
+    let p = Prepared::new(&scene, a.bvh_preset, format)?;
+    let camera = scene.camera_or_default(&p.model);
+    let meta = p.meta(&scene, camera, scene.width, scene.height);
+    // Write beside the target and rename, so a failed write never leaves a half file behind.
+    let tmp = a.output.with_extension("dcb.partial");
+    dcrt::blocks::file::write(&tmp, &p.blocks, &meta)?;
+    std::fs::rename(&tmp, &a.output)
+        .with_context(|| format!("{}: cannot rename into place", a.output.display()))?;
+    eprintln!(
+        "{} triangles, {} node + {} triangle blocks of {} bytes ({} MiB), BVH depth {}, wrote {}",
+        p.model.triangles.len(),
+        p.blocks.node_blocks,
+        p.blocks.tri_blocks,
+        format.block_bytes,
+        p.blocks.bytes() >> 20,
+        p.bvh.depth,
+        a.output.display()
     );
     Ok(())
 }

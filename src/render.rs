@@ -1,11 +1,14 @@
-//! The single-process pipeline: scene → model → BVH → blocks → GPU frame.
+//! The single-process pipeline: scene → model → BVH → blocks → GPU frame, or a prepared block
+//! file → GPU frame.
 
+use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
 use crate::bvh::{Bvh, Preset};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::Gpu;
-use crate::gpu::tracer::{Frame, FrameStats, Settings, Tracer};
+use crate::gpu::tracer::{Frame, FrameStats, Meshes, Settings, Tracer};
 use crate::scene::{Camera, Model, Scene};
+use std::path::Path;
 use std::time::Instant;
 
 /// A model ready for the GPU: triangles, BVH and blocks.
@@ -40,8 +43,116 @@ impl Prepared {
         })
     }
 
+    pub fn meshes(&self) -> Meshes {
+        Meshes {
+            first_prim: self.model.mesh_first.clone(),
+            colors: self.model.colors.clone(),
+        }
+    }
+
     pub fn tracer<'g>(&self, gpu: &'g Gpu, settings: Settings) -> Result<Tracer<'g>> {
-        Tracer::new(gpu, &self.blocks, &self.model, self.bvh.depth, settings)
+        Tracer::new(gpu, &self.blocks, &self.meshes(), self.bvh.depth, settings)
+    }
+
+    /// The block file's metadata for this model seen with `camera` at `width` x `height`.
+    pub fn meta(&self, scene: &Scene, camera: Camera, width: u32, height: u32) -> Meta {
+        Meta {
+            camera,
+            width,
+            height,
+            background: scene.background,
+            mesh_first: self.model.mesh_first.clone(),
+            colors: self.model.colors.clone(),
+            triangles: self.model.triangles.len() as u64,
+            nodes: self.bvh.nodes.len() as u64,
+            bvh_depth: self.bvh.depth,
+            bounds_min: self.model.bounds.min,
+            bounds_max: self.model.bounds.max,
+            source: scene.path.display().to_string(),
+        }
+    }
+}
+
+/// What a render needs, from a scene (built now) or a block file (built before).
+pub struct Loaded {
+    pub blocks: Blocks,
+    pub meshes: Meshes,
+    pub depth: u32,
+    pub triangles: u64,
+    pub camera: Camera,
+    pub width: u32,
+    pub height: u32,
+    pub background: [f32; 3],
+    /// BVH build and layout time when built now.
+    pub build_seconds: Option<f64>,
+}
+
+impl Loaded {
+    /// Loads `path`: a `.dcb` block file, a scene naming one with `model = "..."`, or a scene of
+    /// meshes, prepared on the fly.
+    pub fn open(path: &Path, preset: Preset, format: Format) -> Result<Loaded> {
+        if path.extension().is_some_and(|e| e == "dcb") {
+            return Loaded::from_dcb(path, None);
+        }
+        let scene = Scene::load(path)?;
+        if let Some(model) = &scene.model {
+            let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
+            return Loaded::from_dcb(&dcb, Some(&scene));
+        }
+        let p = Prepared::new(&scene, preset, format)?;
+        let camera = scene.camera_or_default(&p.model);
+        Ok(Loaded {
+            meshes: p.meshes(),
+            depth: p.bvh.depth,
+            triangles: p.model.triangles.len() as u64,
+            camera,
+            width: scene.width,
+            height: scene.height,
+            background: scene.background,
+            build_seconds: Some((p.bvh.build_time + p.bvh.layout_time).as_secs_f64()),
+            blocks: p.blocks,
+        })
+    }
+
+    /// A block file; a scene naming it may override the camera, image size and background.
+    pub fn from_dcb(path: &Path, scene: Option<&Scene>) -> Result<Loaded> {
+        let f = DcbFile::open(path)?;
+        let m = &f.meta;
+        if m.mesh_first.len() != m.colors.len() || m.mesh_first.first() != Some(&0) {
+            return Err(Error::format(
+                path,
+                None,
+                "metadata: inconsistent mesh table",
+            ));
+        }
+        let blocks = f.read_all()?;
+        let (camera, width, height, background) = match scene {
+            Some(s) => (
+                s.camera.unwrap_or(m.camera),
+                if s.image_given { s.width } else { m.width },
+                if s.image_given { s.height } else { m.height },
+                s.background,
+            ),
+            None => (m.camera, m.width, m.height, m.background),
+        };
+        Ok(Loaded {
+            meshes: Meshes {
+                first_prim: m.mesh_first.clone(),
+                colors: m.colors.clone(),
+            },
+            depth: m.bvh_depth,
+            triangles: m.triangles,
+            camera,
+            width,
+            height,
+            background,
+            build_seconds: None,
+            blocks,
+        })
+    }
+
+    pub fn tracer<'g>(&self, gpu: &'g Gpu, settings: Settings) -> Result<Tracer<'g>> {
+        Tracer::new(gpu, &self.blocks, &self.meshes, self.depth, settings)
     }
 }
 

@@ -11,7 +11,7 @@ use super::layout::{Counter, MeshInfo, Params, Pixel, RayState, Stats};
 use super::shaders::{self, Store};
 use crate::blocks::Blocks;
 use crate::error::{Error, Result};
-use crate::scene::{CameraBasis, Model};
+use crate::scene::CameraBasis;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
@@ -46,6 +46,14 @@ impl Default for Settings {
             store: Store::Texture,
         }
     }
+}
+
+/// Each mesh's first primitive id and colour: all the tracer needs to know of the scene besides
+/// its blocks.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Meshes {
+    pub first_prim: Vec<u32>,
+    pub colors: Vec<[f32; 3]>,
 }
 
 /// What one frame cost.
@@ -380,7 +388,7 @@ impl<'g> Tracer<'g> {
     pub fn new(
         gpu: &'g Gpu,
         blocks: &Blocks,
-        model: &Model,
+        meshes: &Meshes,
         depth: u32,
         settings: Settings,
     ) -> Result<Tracer<'g>> {
@@ -410,10 +418,10 @@ impl<'g> Tracer<'g> {
             }
             Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, blocks)?), 0),
         };
-        let meshes: Vec<MeshInfo> = model
+        let meshes: Vec<MeshInfo> = meshes
             .colors
             .iter()
-            .zip(&model.mesh_first)
+            .zip(&meshes.first_prim)
             .map(|(c, &f)| MeshInfo {
                 color: [c[0], c[1], c[2], 1.0],
                 first_prim: f,

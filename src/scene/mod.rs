@@ -20,6 +20,8 @@ pub const MAX_IMAGE_SIDE: u32 = 16384;
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
+    /// A prepared block file (`dcrt prepare`) instead of meshes.
+    model: Option<PathBuf>,
     camera: Option<Camera>,
     image: Option<ImageSpec>,
     #[serde(rename = "mesh", default)]
@@ -61,7 +63,11 @@ pub struct Scene {
     pub height: u32,
     /// Linear RGB of rays that hit nothing.
     pub background: [f32; 3],
+    /// Whether `[image]` was given (a prepared model keeps its own size otherwise).
+    pub image_given: bool,
     pub meshes: Vec<MeshSpec>,
+    /// A prepared block file, relative to the scene file.
+    pub model: Option<PathBuf>,
 }
 
 pub const DEFAULT_COLOR: [f32; 3] = [0.8, 0.8, 0.8];
@@ -82,6 +88,7 @@ impl Scene {
         if let Some(c) = &file.camera {
             c.validate().map_err(|e| bad(e.to_string()))?;
         }
+        let image_given = file.image.is_some();
         let image = file.image.unwrap_or(ImageSpec {
             width: 512,
             height: 512,
@@ -90,8 +97,14 @@ impl Scene {
         check_image_size(image.width, image.height).map_err(|e| bad(e.to_string()))?;
         let background = image.background.unwrap_or(DEFAULT_BACKGROUND);
         check_color(background).map_err(|m| bad(format!("image.background: {m}")))?;
-        if file.meshes.is_empty() {
-            return Err(bad("the scene has no [[mesh]] entries".into()));
+        match (&file.model, file.meshes.is_empty()) {
+            (None, true) => return Err(bad("the scene has no [[mesh]] entries".into())),
+            (Some(_), false) => {
+                return Err(bad(
+                    "give either `model` (a prepared .dcb) or [[mesh]] entries, not both".into(),
+                ));
+            }
+            _ => {}
         }
         for (i, m) in file.meshes.iter().enumerate() {
             let at = |m: &str| bad(format!("mesh {}: {m}", i + 1));
@@ -140,7 +153,9 @@ impl Scene {
             width: image.width,
             height: image.height,
             background,
+            image_given,
             meshes: file.meshes,
+            model: file.model,
         })
     }
 
@@ -152,6 +167,8 @@ impl Scene {
             width,
             height,
             background: DEFAULT_BACKGROUND,
+            image_given: true,
+            model: None,
             meshes: vec![MeshSpec {
                 file: None,
                 generator: Some(generator.name().into()),
@@ -166,6 +183,13 @@ impl Scene {
 
     /// Loads every mesh and flattens them into one triangle list in primitive-id order.
     pub fn load_model(&self) -> Result<Model> {
+        if self.model.is_some() {
+            return Err(Error::format(
+                &self.path,
+                None,
+                "names a prepared model; it has no meshes to load",
+            ));
+        }
         let dir = self.path.parent().unwrap_or(Path::new("."));
         let mut model = Model::default();
         for spec in &self.meshes {
