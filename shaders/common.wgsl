@@ -35,8 +35,18 @@ struct Params {
     tris_per_block: u32,
     id_word: u32,
     texels_per_block: u32,
+    // Distributed cache (DESIGN.md sections 2, 3): ranks N, this rank, cache lines, mapping
+    // (0 Ize, 1 DeMarle), first cache row, the replicated root block's row, fault list capacity.
+    dc_ranks: u32,
+    dc_rank: u32,
+    dc_lines: u32,
+    dc_map: u32,
+    dc_cache_row: u32,
+    dc_root_row: u32,
+    dc_fault_cap: u32,
     pad0: u32,
     pad1: u32,
+    pad2: u32,
 }
 
 // Mirrors gpu::layout::RayState: one per ray of a batch, kept between trace dispatches.
@@ -97,16 +107,89 @@ struct Node {
     count: u32,
 }
 
-fn load_node(i: u32) -> Node {
-    let block = i / params.nodes_per_block;
-    let slot = i - block * params.nodes_per_block;
-    let a = texel(block, slot * 2u);
-    let b = texel(block, slot * 2u + 1u);
+// --- Block access. `locate` maps a block id to the row that holds it, or NONE after recording a
+// fault; the accessors below read from a row.
+
+// Pipelines built for the distributed cache set DC; replicated ones leave it false and pay for
+// no cache check at all.
+override DC: bool = false;
+
+// Mirrors gpu::layout::FaultHeader, followed by the deduplicated list of faulted blocks.
+struct Faults {
+    count: atomic<u32>,
+    dropped: atomic<u32>,
+    pad0: u32,
+    pad1: u32,
+    blocks: array<u32>,
+}
+@group(0) @binding(3) var<storage, read> tags: array<u32>;          // block in each cache line
+@group(0) @binding(4) var<storage, read_write> faults: Faults;
+@group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
+@group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
+
+// Per invocation, summed into Stats by the trace kernel.
+var<private> dc_lookups: u32 = 0u;
+var<private> dc_hits: u32 = 0u;
+var<private> dc_misses: u32 = 0u;
+
+fn cache_line(k: u32) -> u32 {
+    if params.dc_map == 0u {
+        // Ize: count only the blocks this rank does not own, so no line is wasted.
+        let n = params.dc_ranks;
+        return (k - (k + (n - params.dc_rank)) / n) % params.dc_lines;
+    }
+    return k % params.dc_lines;
+}
+
+fn locate(k: u32) -> u32 {
+    if !DC {
+        return k;
+    }
+    if k == 0u {
+        return params.dc_root_row;
+    }
+    if k % params.dc_ranks == params.dc_rank {
+        return k / params.dc_ranks;
+    }
+    dc_lookups += 1u;
+    let line = cache_line(k);
+    if tags[line] == k {
+        dc_hits += 1u;
+        return params.dc_cache_row + line;
+    }
+    dc_misses += 1u;
+    atomicAdd(&waiters[line], 1u);
+    let bit = 1u << (k % 32u);
+    if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
+        let i = atomicAdd(&faults.count, 1u);
+        if i < params.dc_fault_cap {
+            faults.blocks[i] = k;
+        } else {
+            atomicAdd(&faults.dropped, 1u);
+        }
+    }
+    return NONE;
+}
+
+// (block id, slot in the block) of node i and of triangle t.
+fn node_loc(i: u32) -> vec2<u32> {
+    let b = i / params.nodes_per_block;
+    return vec2(b, i - b * params.nodes_per_block);
+}
+
+fn tri_loc(t: u32) -> vec2<u32> {
+    let b = t / params.tris_per_block;
+    return vec2(params.node_blocks + b, t - b * params.tris_per_block);
+}
+
+fn node_at(row: u32, slot: u32) -> Node {
+    let a = texel(row, slot * 2u);
+    let b = texel(row, slot * 2u + 1u);
     return Node(bitcast<vec3<f32>>(a.xyz), vec3<f32>(bitcast<f32>(a.w), bitcast<vec2<f32>>(b.xy)), b.z, b.w);
 }
 
-fn word(block: u32, w: u32) -> u32 {
-    let t = texel(block, w / 4u);
+fn word_at(row: u32, w: u32) -> u32 {
+    let t = texel(row, w / 4u);
     let c = w % 4u;
     return select(select(t.w, t.z, c == 2u), select(t.y, t.x, c == 0u), c < 2u);
 }
@@ -117,20 +200,14 @@ struct Tri {
     v2: vec3<f32>,
 }
 
-fn tri_block(t: u32) -> vec2<u32> {
-    let b = t / params.tris_per_block;
-    return vec2<u32>(params.node_blocks + b, t - b * params.tris_per_block);
-}
-
-fn load_tri(t: u32) -> Tri {
+fn tri_at(row: u32, slot: u32) -> Tri {
     // The 9 words of a triangle always span exactly 3 texels, starting at word offset o.
-    let bs = tri_block(t);
-    let w = bs.y * 9u;
+    let w = slot * 9u;
     let t0 = w / 4u;
     let o = w % 4u;
-    let a = texel(bs.x, t0);
-    let b = texel(bs.x, t0 + 1u);
-    let c = texel(bs.x, t0 + 2u);
+    let a = texel(row, t0);
+    let b = texel(row, t0 + 1u);
+    let c = texel(row, t0 + 2u);
     var v: vec3<f32>;
     var e: vec3<f32>;
     var f: vec3<f32>;
@@ -155,9 +232,8 @@ fn load_tri(t: u32) -> Tri {
     return Tri(v, e, f);
 }
 
-fn load_prim_id(t: u32) -> u32 {
-    let bs = tri_block(t);
-    return word(bs.x, params.id_word + bs.y);
+fn prim_id_at(row: u32, slot: u32) -> u32 {
+    return word_at(row, params.id_word + slot);
 }
 
 // Reciprocal of a direction, clamped so that no component is infinite: WGSL does not promise

@@ -35,19 +35,24 @@ fn main() {
     put(p.width); put(p.height); put(p.tiles_x); put(p.first_tile);
     put(p.batch_rays); put(p.step_budget); put(p.stack_size); put(p.mesh_count);
     put(p.node_blocks); put(p.rows_per_layer); put(p.nodes_per_block); put(p.tris_per_block);
-    put(p.id_word); put(p.texels_per_block); put(p.pad0); put(p.pad1);
+    put(p.id_word); put(p.texels_per_block);
+    put(p.dc_ranks); put(p.dc_rank); put(p.dc_lines); put(p.dc_map);
+    put(p.dc_cache_row); put(p.dc_root_row); put(p.dc_fault_cap);
+    put(p.pad0); put(p.pad1); put(p.pad2);
     for (var i = 0u; i < p.pad0; i++) {
-        let n = load_node(i);
+        let l = node_loc(i);
+        let n = node_at(locate(l.x), l.y);
         putf(n.lo.x); putf(n.lo.y); putf(n.lo.z);
         putf(n.hi.x); putf(n.hi.y); putf(n.hi.z);
         put(n.index); put(n.count);
     }
     for (var i = 0u; i < p.pad1; i++) {
-        let t = load_tri(i);
+        let l = tri_loc(i);
+        let t = tri_at(locate(l.x), l.y);
         putf(t.v0.x); putf(t.v0.y); putf(t.v0.z);
         putf(t.v1.x); putf(t.v1.y); putf(t.v1.z);
         putf(t.v2.x); putf(t.v2.y); putf(t.v2.z);
-        put(load_prim_id(i));
+        put(prim_id_at(locate(l.x), l.y));
     }
     for (var i = 0u; i < 2u; i++) {
         let r = probe_rays[i];

@@ -1,6 +1,8 @@
 // One trace round: every live ray runs at most `step_budget` loop iterations of closest-hit BVH
 // traversal (lavapipe silently stops a loop after 65,535 iterations, so no invocation may ever
-// come near that), then saves its state. Rays not done are appended to the next live list.
+// come near that), then saves its state. A ray that needs a block its GPU lacks records a fault
+// and suspends where it stands; it repeats that step once the block is in the cache. Rays not
+// done are appended to the next live list.
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 // Per ray `stack_size` entries of (node, entry distance bits).
@@ -14,6 +16,10 @@ struct Stats {
     steps: atomic<u32>,
     tri_tests: atomic<u32>,
     overflows: atomic<u32>,
+    suspended: atomic<u32>,
+    lookups: atomic<u32>,
+    hits: atomic<u32>,
+    misses: atomic<u32>,
     unused: u32,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
@@ -22,6 +28,10 @@ var<workgroup> wg_count: atomic<u32>;
 var<workgroup> wg_base: u32;
 var<workgroup> wg_steps: atomic<u32>;
 var<workgroup> wg_tris: atomic<u32>;
+var<workgroup> wg_suspended: atomic<u32>;
+var<workgroup> wg_lookups: atomic<u32>;
+var<workgroup> wg_hits: atomic<u32>;
+var<workgroup> wg_misses: atomic<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -37,8 +47,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let base = ray_index * params.stack_size;
         var iters = 0u;
         var tests = 0u;
+        var suspended = false;
         // The node being visited, already read when `have`: a child chosen at its parent is not
-        // read twice.
+        // read twice, and a resumed ray needs only the block it faulted on.
         var cur: Node;
         var have = r.cur_count != NONE;
         cur.index = r.cur_index;
@@ -65,13 +76,27 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             if iters >= params.step_budget {
                 break;
             }
-            iters += 1u;
             if !have {
-                cur = load_node(r.node);
+                let l = node_loc(r.node);
+                let row = locate(l.x);
+                if row == NONE {
+                    suspended = true;
+                    break;
+                }
+                cur = node_at(row, l.y);
+                have = true;
             }
             if cur.count == 0u {
-                let a = load_node(cur.index);
-                let b = load_node(cur.index + 1u);
+                // Both children share a block: pairs never straddle one.
+                let l = node_loc(cur.index);
+                let row = locate(l.x);
+                if row == NONE {
+                    suspended = true;
+                    break;
+                }
+                iters += 1u;
+                let a = node_at(row, l.y);
+                let b = node_at(row, l.y + 1u);
                 let ta = box_entry(a.lo, a.hi, org, inv, r.t);
                 let tb = box_entry(b.lo, b.hi, org, inv, r.t);
                 if ta >= 0.0 && tb >= 0.0 {
@@ -90,35 +115,47 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.node = cur.index + 1u;
                         cur = b;
                     }
-                    have = true;
                 } else if ta >= 0.0 {
                     r.node = cur.index;
                     cur = a;
-                    have = true;
                 } else if tb >= 0.0 {
                     r.node = cur.index + 1u;
                     cur = b;
-                    have = true;
                 } else {
                     r.node = NONE;
                     have = false;
                 }
             } else {
-                // Leaf: the triangle loop's iterations count against the same budget.
-                iters += cur.count;
-                tests += cur.count;
+                // Leaf. Its triangles may span two blocks: a fault part-way keeps the untested
+                // rest as the current node, so a resumed ray never needs the first block again
+                // (with one cache line it would evict the second).
+                iters += 1u + cur.count;
+                var rest = 0u;
                 for (var k = 0u; k < cur.count; k++) {
-                    let t = intersect(load_tri(cur.index + k), org, sh, r.t);
+                    let l = tri_loc(cur.index + k);
+                    let row = locate(l.x);
+                    if row == NONE {
+                        rest = cur.count - k;
+                        break;
+                    }
+                    tests += 1u;
+                    let tri = tri_at(row, l.y);
+                    let t = intersect(tri, org, sh, r.t);
                     if t > 0.0 {
                         r.t = t;
                         r.hit = cur.index + k;
-                        let tri = load_tri(r.hit);
                         let n = normalize(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
                         r.nx = n.x;
                         r.ny = n.y;
                         r.nz = n.z;
-                        r.prim = load_prim_id(r.hit);
+                        r.prim = prim_id_at(row, l.y);
                     }
+                }
+                if rest > 0u {
+                    cur.index += cur.count - rest;
+                    cur.count = rest;
+                    suspended = true;
+                    break;
                 }
                 r.node = NONE;
                 have = false;
@@ -134,6 +171,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         atomicAdd(&wg_steps, iters);
         atomicAdd(&wg_tris, tests);
+        if suspended {
+            atomicAdd(&wg_suspended, 1u);
+        }
+        if DC {
+            atomicAdd(&wg_lookups, dc_lookups);
+            atomicAdd(&wg_hits, dc_hits);
+            atomicAdd(&wg_misses, dc_misses);
+        }
     }
     var slot = 0u;
     if again {
@@ -145,6 +190,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         wg_base = atomicAdd(&counter_out.count, n);
         atomicAdd(&stats.steps, atomicLoad(&wg_steps));
         atomicAdd(&stats.tri_tests, atomicLoad(&wg_tris));
+        atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
+        if DC {
+            atomicAdd(&stats.lookups, atomicLoad(&wg_lookups));
+            atomicAdd(&stats.hits, atomicLoad(&wg_hits));
+            atomicAdd(&stats.misses, atomicLoad(&wg_misses));
+        }
     }
     let base = workgroupUniformLoad(&wg_base);
     if again {

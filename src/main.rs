@@ -163,7 +163,7 @@ fn render(a: RenderArgs) -> Result<()> {
     check_image_size(width, height)?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
-    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu))?;
+    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu), None)?;
     let (frame, stats) = render_frame(
         &mut tracer,
         &loaded.camera,

@@ -4,9 +4,11 @@
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
 use crate::bvh::{Bvh, Preset};
+use crate::dc::source::VirtualRanks;
+use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
-use crate::gpu::tracer::{Frame, FrameStats, Meshes, Settings, Tracer};
+use crate::gpu::tracer::{DcSetup, Frame, FrameStats, GpuModel, Meshes, Settings, Tracer};
 use crate::scene::{Camera, Model, Scene};
 use std::path::Path;
 use std::time::Instant;
@@ -51,7 +53,31 @@ impl Prepared {
     }
 
     pub fn tracer<'g>(&self, gpu: &'g Gpu, settings: Settings) -> Result<Tracer<'g>> {
-        Tracer::new(gpu, &self.blocks, &self.meshes(), self.bvh.depth, settings)
+        tracer(
+            gpu,
+            &self.blocks,
+            &self.meshes(),
+            self.bvh.depth,
+            settings,
+            None,
+        )
+    }
+
+    /// A tracer for one virtual rank of a distributed cache.
+    pub fn tracer_dc<'g>(
+        &self,
+        gpu: &'g Gpu,
+        settings: Settings,
+        dc: &DcOptions,
+    ) -> Result<Tracer<'g>> {
+        tracer(
+            gpu,
+            &self.blocks,
+            &self.meshes(),
+            self.bvh.depth,
+            settings,
+            Some(dc),
+        )
     }
 
     /// The block file's metadata for this model seen with `camera` at `width` x `height`.
@@ -151,8 +177,81 @@ impl Loaded {
         })
     }
 
-    pub fn tracer<'g>(&self, gpu: &'g Gpu, settings: Settings) -> Result<Tracer<'g>> {
-        Tracer::new(gpu, &self.blocks, &self.meshes, self.depth, settings)
+    pub fn tracer<'g>(
+        &self,
+        gpu: &'g Gpu,
+        settings: Settings,
+        dc: Option<&DcOptions>,
+    ) -> Result<Tracer<'g>> {
+        tracer(gpu, &self.blocks, &self.meshes, self.depth, settings, dc)
+    }
+}
+
+/// How one process runs the distributed cache: `ranks` virtual ranks in one process, rendering
+/// as `rank`, with a cache of `cache` and the `map` mapping.
+#[derive(Clone, Copy, Debug)]
+pub struct DcOptions {
+    pub ranks: u32,
+    pub rank: u32,
+    pub cache: CacheSize,
+    pub map: CacheMap,
+}
+
+/// Memory a rank holds for the model: its resident blocks (own + root) and its cache.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct RankMemory {
+    pub resident_bytes: u64,
+    pub cache_bytes: u64,
+}
+
+impl DcOptions {
+    pub fn memory(&self, blocks: &Blocks) -> Result<RankMemory> {
+        let ranks = Ranks::new(self.ranks, self.rank)?;
+        let bb = u64::from(blocks.format.block_bytes);
+        let resident = u64::from(ranks.owned(blocks.count()) + u32::from(!ranks.owns(0)));
+        Ok(RankMemory {
+            resident_bytes: resident * bb,
+            cache_bytes: u64::from(self.cache.lines(blocks.count(), blocks.format.block_bytes))
+                * bb,
+        })
+    }
+}
+
+fn tracer<'g>(
+    gpu: &'g Gpu,
+    blocks: &Blocks,
+    meshes: &Meshes,
+    depth: u32,
+    settings: Settings,
+    dc: Option<&DcOptions>,
+) -> Result<Tracer<'g>> {
+    let base = GpuModel {
+        format: blocks.format,
+        node_blocks: blocks.node_blocks,
+        tri_blocks: blocks.tri_blocks,
+        resident: &blocks.words,
+        meshes,
+        depth,
+    };
+    match dc {
+        None => Tracer::new(gpu, &base, settings, None),
+        Some(o) => {
+            let ranks = Ranks::new(o.ranks, o.rank)?;
+            let stores = VirtualRanks::new(blocks, o.ranks)?;
+            let resident = stores.resident_rows(o.rank);
+            let lines = o.cache.lines(blocks.count(), blocks.format.block_bytes);
+            let model = GpuModel {
+                resident: &resident,
+                ..base
+            };
+            let setup = DcSetup {
+                ranks,
+                lines,
+                map: o.map,
+                source: Box::new(stores),
+            };
+            Tracer::new(gpu, &model, settings, Some(setup))
+        }
     }
 }
 

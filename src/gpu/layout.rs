@@ -27,10 +27,19 @@ pub struct Params {
     pub tris_per_block: u32,
     pub id_word: u32,
     pub texels_per_block: u32,
+    pub dc_ranks: u32,
+    pub dc_rank: u32,
+    pub dc_lines: u32,
+    /// 0 Ize, 1 DeMarle.
+    pub dc_map: u32,
+    pub dc_cache_row: u32,
+    pub dc_root_row: u32,
+    pub dc_fault_cap: u32,
     pub pad0: u32,
     pub pad1: u32,
+    pub pad2: u32,
 }
-const _: () = assert!(std::mem::size_of::<Params>() == 144);
+const _: () = assert!(std::mem::size_of::<Params>() == 176);
 
 /// `RayState` in `shaders/common.wgsl`.
 #[repr(C)]
@@ -100,7 +109,24 @@ pub struct Stats {
     pub steps: u32,
     pub tri_tests: u32,
     pub overflows: u32,
+    /// Rays that stopped on a fault this round.
+    pub suspended: u32,
+    /// Cache consultations (blocks neither owned nor the root), and how they went.
+    pub lookups: u32,
+    pub hits: u32,
+    pub misses: u32,
     pub unused: u32,
+}
+
+/// `Faults` in `shaders/common.wgsl`, before its list of faulted blocks.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct FaultHeader {
+    /// Distinct blocks faulted this round (may exceed the list's capacity).
+    pub count: u32,
+    /// Faults that did not fit in the list; they fault again next round.
+    pub dropped: u32,
+    pub pad: [u32; 2],
 }
 
 pub const NONE: u32 = u32::MAX;

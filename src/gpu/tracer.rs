@@ -7,9 +7,12 @@
 //! is live, `shade` writes the pixels.
 
 use super::Gpu;
-use super::layout::{Counter, MeshInfo, Params, Pixel, RayState, Stats};
+use super::layout::{Counter, FaultHeader, MeshInfo, Params, Pixel, RayState, Stats};
 use super::shaders::{self, Store};
-use crate::blocks::Blocks;
+use crate::blocks::Format;
+use crate::dc::source::BlockSource;
+use crate::dc::trace::{Fault, FrameTrace, Round};
+use crate::dc::{CacheMap, Ranks, cache_line};
 use crate::error::{Error, Result};
 use crate::scene::CameraBasis;
 use std::time::{Duration, Instant};
@@ -73,6 +76,17 @@ pub struct FrameStats {
     pub seconds: f64,
     pub trace_seconds: f64,
     pub shade_seconds: f64,
+    /// Distributed cache: cache consultations, hits, misses; blocks fetched and their bytes;
+    /// time fetching (CPU) and uploading into the cache.
+    pub lookups: u64,
+    pub hits: u64,
+    pub misses: u64,
+    pub fetched_blocks: u64,
+    pub fetched_bytes: u64,
+    pub fetch_seconds: f64,
+    pub upload_seconds: f64,
+    /// Rounds that had faults.
+    pub fault_rounds: u32,
 }
 
 /// A traced frame: one `Pixel` per image pixel, row-major, y down.
@@ -98,6 +112,8 @@ struct Batch {
     counters: [wgpu::Buffer; 2],
     stats: wgpu::Buffer,
     readback: wgpu::Buffer,
+    fault_readback: wgpu::Buffer,
+    waiter_readback: wgpu::Buffer,
     pixel_readback: wgpu::Buffer,
     raygen_bg: wgpu::BindGroup,
     trace_bg: [wgpu::BindGroup; 2],
@@ -115,19 +131,35 @@ pub struct Tracer<'g> {
     batch: Batch,
     settings: Settings,
     layouts: Layouts,
-    _blocks: BlockStore,
+    blocks_store: BlockStore,
+    format: Format,
+    dc: Option<Dc>,
 }
+
+const NONE_TAG: u32 = u32::MAX;
 
 /// The GPU copy of the blocks, kept alive while the tracer's bind group uses it.
 enum BlockStore {
-    Texture(wgpu::TextureView),
+    Texture(wgpu::Texture, wgpu::TextureView),
     Buffer(wgpu::Buffer),
 }
 
 impl BlockStore {
+    /// Replaces the block in `row` (a cache line) between dispatches.
+    fn write_row(&self, gpu: &Gpu, format: Format, per_layer: u32, row: u32, words: &[u32]) {
+        match self {
+            BlockStore::Texture(t, _) => write_texture_rows(gpu, t, format, per_layer, row, words),
+            BlockStore::Buffer(b) => gpu.queue.write_buffer(
+                b,
+                u64::from(row) * u64::from(format.block_bytes),
+                bytemuck::cast_slice(words),
+            ),
+        }
+    }
+
     fn resource(&self) -> wgpu::BindingResource<'_> {
         match self {
-            BlockStore::Texture(view) => wgpu::BindingResource::TextureView(view),
+            BlockStore::Texture(_, view) => wgpu::BindingResource::TextureView(view),
             BlockStore::Buffer(b) => b.as_entire_binding(),
         }
     }
@@ -209,6 +241,10 @@ fn layouts(gpu: &Gpu, store: Store) -> Layouts {
             },
             blocks,
             storage(2, true),
+            storage(3, true),
+            storage(4, false),
+            storage(5, false),
+            storage(6, false),
         ],
     );
     let rw = |n: u32| -> Vec<_> { (0..n).map(|i| storage(i, false)).collect() };
@@ -237,6 +273,7 @@ fn layouts(gpu: &Gpu, store: Store) -> Layouts {
 fn pipeline(
     gpu: &Gpu,
     store: Store,
+    dc: bool,
     name: &str,
     scene: &wgpu::BindGroupLayout,
     own: &wgpu::BindGroupLayout,
@@ -260,7 +297,10 @@ fn pipeline(
             layout: Some(&layout),
             module: &module,
             entry_point: Some("main"),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("DC", if dc { 1.0 } else { 0.0 })],
+                ..Default::default()
+            },
             cache: None,
         })
 }
@@ -274,24 +314,45 @@ fn buffer(gpu: &Gpu, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu:
     })
 }
 
-/// Uploads all blocks into one `Rgba32Uint` 2D array texture, one block per row.
-fn upload_blocks(gpu: &Gpu, blocks: &Blocks) -> Result<(wgpu::Texture, u32)> {
-    let texels = blocks.format.texels();
+/// The rows of blocks a GPU holds: the resident ones it is given, then `lines` cache lines.
+struct Rows<'a> {
+    format: Format,
+    resident: &'a [u32],
+    lines: u32,
+}
+
+impl Rows<'_> {
+    fn resident_rows(&self) -> u32 {
+        (self.resident.len() / self.format.words() as usize) as u32
+    }
+    fn total(&self) -> u32 {
+        self.resident_rows() + self.lines
+    }
+    fn bytes(&self) -> u64 {
+        u64::from(self.total()) * u64::from(self.format.block_bytes)
+    }
+}
+
+/// Uploads resident rows into one `Rgba32Uint` 2D array texture, one block per row, with room
+/// for the cache lines after them.
+fn upload_texture(gpu: &Gpu, rows: &Rows<'_>) -> Result<(wgpu::Texture, u32)> {
+    let format = rows.format;
+    let texels = format.texels();
     let max2d = gpu.limits.max_texture_dimension_2d;
-    let count = blocks.count().max(1);
+    let count = rows.total().max(1);
     if texels > max2d {
         return Err(Error::Gpu(format!(
             "block of {} bytes needs a texture {texels} texels wide; the adapter allows {max2d}",
-            blocks.format.block_bytes
+            format.block_bytes
         )));
     }
-    let rows = count.min(max2d);
-    let layers = count.div_ceil(rows);
+    let per_layer = count.min(max2d);
+    let layers = count.div_ceil(per_layer);
     if layers > gpu.limits.max_texture_array_layers {
         return Err(Error::Gpu(format!(
-            "the model's {count} blocks ({} MiB) need {layers} texture layers of {rows} blocks; \
-             the adapter allows {} layers",
-            blocks.bytes() >> 20,
+            "{count} blocks ({} MiB: resident blocks and cache) need {layers} texture layers of \
+             {per_layer} blocks; the adapter allows {} layers",
+            rows.bytes() >> 20,
             gpu.limits.max_texture_array_layers
         )));
     }
@@ -301,7 +362,7 @@ fn upload_blocks(gpu: &Gpu, blocks: &Blocks) -> Result<(wgpu::Texture, u32)> {
         label: Some("blocks"),
         size: wgpu::Extent3d {
             width: texels,
-            height: rows,
+            height: per_layer,
             depth_or_array_layers: layers,
         },
         mip_level_count: 1,
@@ -311,44 +372,24 @@ fn upload_blocks(gpu: &Gpu, blocks: &Blocks) -> Result<(wgpu::Texture, u32)> {
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
-    let bytes: &[u8] = bytemuck::cast_slice(&blocks.words);
-    let per_block = blocks.format.block_bytes as usize;
-    for layer in 0..layers {
-        let first = (layer * rows) as usize;
-        let n = (blocks.count() as usize)
-            .saturating_sub(first)
-            .min(rows as usize);
-        if n == 0 {
-            continue;
-        }
-        gpu.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d {
-                    x: 0,
-                    y: 0,
-                    z: layer,
-                },
-                aspect: wgpu::TextureAspect::All,
-            },
-            &bytes[first * per_block..(first + n) * per_block],
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(blocks.format.block_bytes),
-                rows_per_image: Some(n as u32),
-            },
-            wgpu::Extent3d {
-                width: texels,
-                height: n as u32,
-                depth_or_array_layers: 1,
-            },
+    let resident = rows.resident_rows();
+    let mut first = 0;
+    while first < resident {
+        let n = (resident - first).min(per_layer - first % per_layer);
+        write_texture_rows(
+            gpu,
+            &texture,
+            format,
+            per_layer,
+            first,
+            rows_of(rows, first, n),
         );
+        first += n;
     }
     let fail = |e: wgpu::Error| {
         Error::Gpu(format!(
-            "cannot hold the model's {} MiB of blocks in one texture: {e}",
-            blocks.bytes() >> 20
+            "cannot hold {} MiB of blocks (resident and cache) in one texture: {e}",
+            rows.bytes() >> 20
         ))
     };
     if let Some(e) = pollster::block_on(scope_v.pop()) {
@@ -357,40 +398,121 @@ fn upload_blocks(gpu: &Gpu, blocks: &Blocks) -> Result<(wgpu::Texture, u32)> {
     if let Some(e) = pollster::block_on(scope.pop()) {
         return Err(fail(e));
     }
-    Ok((texture, rows))
+    Ok((texture, per_layer))
 }
 
-/// Uploads all blocks into one storage buffer.
-fn upload_buffer(gpu: &Gpu, blocks: &Blocks) -> Result<wgpu::Buffer> {
+fn rows_of<'a>(rows: &Rows<'a>, first: u32, n: u32) -> &'a [u32] {
+    let bw = rows.format.words() as usize;
+    &rows.resident[first as usize * bw..(first + n) as usize * bw]
+}
+
+/// Writes `data` (whole blocks) into consecutive rows from `first`, all in one layer.
+fn write_texture_rows(
+    gpu: &Gpu,
+    texture: &wgpu::Texture,
+    format: Format,
+    per_layer: u32,
+    first: u32,
+    data: &[u32],
+) {
+    let n = (data.len() / format.words() as usize) as u32;
+    gpu.queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d {
+                x: 0,
+                y: first % per_layer,
+                z: first / per_layer,
+            },
+            aspect: wgpu::TextureAspect::All,
+        },
+        bytemuck::cast_slice(data),
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(format.block_bytes),
+            rows_per_image: Some(n),
+        },
+        wgpu::Extent3d {
+            width: format.texels(),
+            height: n,
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
+/// Uploads resident rows into one storage buffer with room for the cache lines.
+fn upload_buffer(gpu: &Gpu, rows: &Rows<'_>) -> Result<wgpu::Buffer> {
     let limit = gpu
         .limits
         .max_storage_buffer_binding_size
         .min(gpu.limits.max_buffer_size);
-    if blocks.bytes() > limit {
+    if rows.bytes() > limit {
         return Err(Error::Gpu(format!(
-            "the model's {} MiB of blocks exceed the adapter's {} MiB storage buffer binding; \
-             use the texture store",
-            blocks.bytes() >> 20,
+            "{} MiB of blocks (resident and cache) exceed the adapter's {} MiB storage buffer \
+             binding; use the texture store",
+            rows.bytes() >> 20,
             limit >> 20
         )));
     }
-    Ok(gpu
-        .device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("blocks"),
-            contents: bytemuck::cast_slice(&blocks.words),
-            usage: wgpu::BufferUsages::STORAGE,
-        }))
+    let buf = buffer(
+        gpu,
+        "blocks",
+        rows.bytes(),
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+    );
+    gpu.queue
+        .write_buffer(&buf, 0, bytemuck::cast_slice(rows.resident));
+    Ok(buf)
+}
+
+/// The distributed cache of one rank: its place among the ranks, the cache, where borrowed
+/// blocks come from, and the trace of the current frame.
+pub struct DcSetup {
+    pub ranks: Ranks,
+    pub lines: u32,
+    pub map: CacheMap,
+    pub source: Box<dyn BlockSource>,
+}
+
+struct Dc {
+    ranks: Ranks,
+    lines: u32,
+    map: CacheMap,
+    source: Box<dyn BlockSource>,
+    /// Block in each line (`NONE` when empty), as the GPU's tag table holds it.
+    tags: Vec<u32>,
+    tags_buf: wgpu::Buffer,
+    faults: wgpu::Buffer,
+    requested: wgpu::Buffer,
+    waiters: wgpu::Buffer,
+    fault_cap: u32,
+    trace: FrameTrace,
+}
+
+/// The largest number of distinct faults one round records (more fault again next round).
+const FAULT_CAP: u32 = 1 << 16;
+
+/// A model as one GPU holds it: every block (replicated), or its resident rows plus a cache.
+pub struct GpuModel<'a> {
+    pub format: Format,
+    pub node_blocks: u32,
+    pub tri_blocks: u32,
+    /// Words of the resident rows: all blocks in id order when replicated; with a DC, the
+    /// rank's own blocks by slot, then the root block unless the rank owns it.
+    pub resident: &'a [u32],
+    pub meshes: &'a Meshes,
+    /// BVH depth: sizes the traversal stack.
+    pub depth: u32,
 }
 
 impl<'g> Tracer<'g> {
-    /// Uploads a model's blocks. `depth` is the BVH depth (it sizes the traversal stack).
+    /// Uploads a model's blocks; `dc` is `None` for a replicated model.
     pub fn new(
         gpu: &'g Gpu,
-        blocks: &Blocks,
-        meshes: &Meshes,
-        depth: u32,
+        model: &GpuModel<'_>,
         settings: Settings,
+        dc: Option<DcSetup>,
     ) -> Result<Tracer<'g>> {
         if !(1..=MAX_STEP_BUDGET).contains(&settings.step_budget) {
             return Err(Error::Invalid(format!(
@@ -398,30 +520,40 @@ impl<'g> Tracer<'g> {
                 settings.step_budget
             )));
         }
+        let format = model.format;
+        let blocks = model.node_blocks + model.tri_blocks;
+        let lines = dc.as_ref().map_or(0, |d| d.lines);
+        let rows = Rows {
+            format,
+            resident: model.resident,
+            lines,
+        };
         let st = settings.store;
+        let use_dc = dc.is_some();
         let l = layouts(gpu, st);
         let kernels = Kernels {
-            raygen: pipeline(gpu, st, "raygen", &l.scene, &l.raygen),
-            trace: pipeline(gpu, st, "trace", &l.scene, &l.trace),
-            args: pipeline(gpu, st, "args", &l.scene, &l.args),
-            shade: pipeline(gpu, st, "shade", &l.scene, &l.shade),
-            probe: pipeline(gpu, st, "probe", &l.scene, &l.probe),
+            raygen: pipeline(gpu, st, use_dc, "raygen", &l.scene, &l.raygen),
+            trace: pipeline(gpu, st, use_dc, "trace", &l.scene, &l.trace),
+            args: pipeline(gpu, st, use_dc, "args", &l.scene, &l.args),
+            shade: pipeline(gpu, st, use_dc, "shade", &l.scene, &l.shade),
+            probe: pipeline(gpu, st, use_dc, "probe", &l.scene, &l.probe),
         };
         let (store, rows_per_layer) = match st {
             Store::Texture => {
-                let (texture, rows) = upload_blocks(gpu, blocks)?;
+                let (texture, per_layer) = upload_texture(gpu, &rows)?;
                 let view = texture.create_view(&wgpu::TextureViewDescriptor {
                     dimension: Some(wgpu::TextureViewDimension::D2Array),
                     ..Default::default()
                 });
-                (BlockStore::Texture(view), rows)
+                (BlockStore::Texture(texture, view), per_layer)
             }
-            Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, blocks)?), 0),
+            Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, &rows)?), 0),
         };
-        let meshes: Vec<MeshInfo> = meshes
+        let meshes: Vec<MeshInfo> = model
+            .meshes
             .colors
             .iter()
-            .zip(&meshes.first_prim)
+            .zip(&model.meshes.first_prim)
             .map(|(c, &f)| MeshInfo {
                 color: [c[0], c[1], c[2], 1.0],
                 first_prim: f,
@@ -435,18 +567,92 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(&meshes),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let stack_size = depth.clamp(1, MAX_STACK);
-        let params = Params {
+        let stack_size = model.depth.clamp(1, MAX_STACK);
+        let mut params = Params {
             step_budget: settings.step_budget,
             stack_size,
             mesh_count: meshes.len() as u32,
-            node_blocks: blocks.node_blocks,
+            node_blocks: model.node_blocks,
             rows_per_layer,
-            nodes_per_block: blocks.format.nodes_per_block(),
-            tris_per_block: blocks.format.tris_per_block(),
-            id_word: blocks.format.id_word(),
-            texels_per_block: blocks.format.texels(),
+            nodes_per_block: format.nodes_per_block(),
+            tris_per_block: format.tris_per_block(),
+            id_word: format.id_word(),
+            texels_per_block: format.texels(),
+            dc_ranks: 1,
             ..Params::default()
+        };
+        use wgpu::BufferUsages as U;
+        let dc = match dc {
+            None => None,
+            Some(d) => {
+                let resident = rows.resident_rows();
+                let expect = d.ranks.owned(blocks) + u32::from(!d.ranks.owns(0));
+                if resident != expect {
+                    return Err(Error::Invalid(format!(
+                        "rank {} of {} should hold {expect} resident blocks, was given {resident}",
+                        d.ranks.rank, d.ranks.n
+                    )));
+                }
+                params.dc_ranks = d.ranks.n;
+                params.dc_rank = d.ranks.rank;
+                params.dc_lines = d.lines;
+                params.dc_map = match d.map {
+                    CacheMap::Ize => 0,
+                    CacheMap::Demarle => 1,
+                };
+                params.dc_cache_row = resident;
+                params.dc_root_row = if d.ranks.owns(0) { 0 } else { resident - 1 };
+                params.dc_fault_cap = FAULT_CAP;
+                let tags = vec![NONE_TAG; d.lines as usize];
+                let tags_buf = gpu
+                    .device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("tags"),
+                        contents: bytemuck::cast_slice(&tags),
+                        usage: U::STORAGE | U::COPY_DST,
+                    });
+                Some(Dc {
+                    ranks: d.ranks,
+                    lines: d.lines,
+                    map: d.map,
+                    source: d.source,
+                    tags,
+                    tags_buf,
+                    faults: buffer(
+                        gpu,
+                        "faults",
+                        16 + 4 * u64::from(FAULT_CAP),
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    requested: buffer(
+                        gpu,
+                        "requested",
+                        4 * u64::from(blocks.div_ceil(32)),
+                        U::STORAGE | U::COPY_DST,
+                    ),
+                    waiters: buffer(
+                        gpu,
+                        "waiters",
+                        4 * u64::from(d.lines),
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    fault_cap: FAULT_CAP,
+                    trace: FrameTrace::default(),
+                })
+            }
+        };
+        // A replicated model binds small placeholders the kernels never read.
+        let placeholder = || buffer(gpu, "unused", 32, U::STORAGE);
+        let (p3, p4, p5, p6);
+        let dc_bufs: [&wgpu::Buffer; 4] = match &dc {
+            Some(d) => [&d.tags_buf, &d.faults, &d.requested, &d.waiters],
+            None => {
+                p3 = placeholder();
+                p4 = placeholder();
+                p5 = placeholder();
+                p6 = placeholder();
+                [&p3, &p4, &p5, &p6]
+            }
         };
         let params_buf = gpu
             .device
@@ -455,25 +661,32 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::bytes_of(&params),
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             });
+        let mut entries = vec![
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: params_buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: store.resource(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: meshes_buf.as_entire_binding(),
+            },
+        ];
+        for (i, b) in dc_bufs.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry {
+                binding: 3 + i as u32,
+                resource: b.as_entire_binding(),
+            });
+        }
         let scene_bg = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("scene"),
             layout: &l.scene,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: params_buf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: store.resource(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: meshes_buf.as_entire_binding(),
-                },
-            ],
+            entries: &entries,
         });
-        let batch = Self::make_batch(gpu, &l, stack_size, settings.max_batch_rays)?;
+        let batch = Self::make_batch(gpu, &l, stack_size, settings.max_batch_rays, lines)?;
         Ok(Tracer {
             gpu,
             kernels,
@@ -483,12 +696,20 @@ impl<'g> Tracer<'g> {
             batch,
             settings,
             layouts: l,
-            _blocks: store,
+            blocks_store: store,
+            format,
+            dc,
         })
     }
 
     /// Allocates per-batch buffers as large as the settings and the adapter's limits allow.
-    fn make_batch(gpu: &Gpu, l: &Layouts, stack_size: u32, max_rays: u32) -> Result<Batch> {
+    fn make_batch(
+        gpu: &Gpu,
+        l: &Layouts,
+        stack_size: u32,
+        max_rays: u32,
+        lines: u32,
+    ) -> Result<Batch> {
         let limit = gpu
             .limits
             .max_storage_buffer_binding_size
@@ -517,9 +738,21 @@ impl<'g> Tracer<'g> {
             buffer(gpu, "counter0", 16, counter_usage),
             buffer(gpu, "counter1", 16, counter_usage),
         ];
-        let stats = buffer(gpu, "stats", 16, U::STORAGE | U::COPY_SRC | U::COPY_DST);
+        let stats = buffer(gpu, "stats", 32, U::STORAGE | U::COPY_SRC | U::COPY_DST);
         let pixels = buffer(gpu, "pixels", n * 32, U::STORAGE | U::COPY_SRC);
-        let readback = buffer(gpu, "readback", 32, U::MAP_READ | U::COPY_DST);
+        let readback = buffer(gpu, "readback", 48, U::MAP_READ | U::COPY_DST);
+        let fault_readback = buffer(
+            gpu,
+            "fault readback",
+            16 + 4 * u64::from(FAULT_CAP),
+            U::MAP_READ | U::COPY_DST,
+        );
+        let waiter_readback = buffer(
+            gpu,
+            "waiter readback",
+            4 * u64::from(lines),
+            U::MAP_READ | U::COPY_DST,
+        );
         let pixel_readback = buffer(gpu, "pixel readback", n * 32, U::MAP_READ | U::COPY_DST);
         let raygen_bg = bind(gpu, &l.raygen, &[&rays_buf, &live[0], &counters[0]]);
         let trace_bg = [0, 1].map(|i| {
@@ -547,6 +780,8 @@ impl<'g> Tracer<'g> {
             counters,
             stats,
             readback,
+            fault_readback,
+            waiter_readback,
             pixel_readback,
             raygen_bg,
             trace_bg,
@@ -609,6 +844,11 @@ impl<'g> Tracer<'g> {
             pixels: vec![Pixel::default(); (w as usize) * (h as usize)],
         };
         let mut stats = FrameStats::default();
+        if let Some(dc) = self.dc.as_mut() {
+            let frame = dc.trace.summary.frame;
+            dc.trace = FrameTrace::default();
+            dc.trace.summary.frame = frame;
+        }
         let tiles_per_batch = self.batch.rays_cap / TILE_RAYS;
         let mut first = 0;
         while first < tiles {
@@ -626,6 +866,30 @@ impl<'g> Tracer<'g> {
         }
         stats.rays = u64::from(w) * u64::from(h);
         stats.seconds = start.elapsed().as_secs_f64();
+        if let Some(dc) = self.dc.as_mut() {
+            let s = &mut dc.trace.summary;
+            s.rank = dc.ranks.rank;
+            s.ranks = dc.ranks.n;
+            s.cache_lines = dc.lines;
+            s.cache_map = format!("{:?}", dc.map).to_lowercase();
+            s.rounds = stats.rounds;
+            s.fault_rounds = stats.fault_rounds;
+            s.lookups = stats.lookups;
+            s.hits = stats.hits;
+            s.misses = stats.misses;
+            s.hit_rate = if stats.lookups > 0 {
+                stats.hits as f64 / stats.lookups as f64
+            } else {
+                1.0
+            };
+            s.fetched_blocks = stats.fetched_blocks;
+            s.fetched_bytes = stats.fetched_bytes;
+            s.frame_ms = stats.seconds * 1e3;
+            s.trace_ms = stats.trace_seconds * 1e3;
+            s.fetch_ms = stats.fetch_seconds * 1e3;
+            s.upload_ms = stats.upload_seconds * 1e3;
+            s.shade_ms = stats.shade_seconds * 1e3;
+        }
         Ok((frame, stats))
     }
 
@@ -634,49 +898,49 @@ impl<'g> Tracer<'g> {
         let gpu = self.gpu;
         gpu.queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
-        let b = &self.batch;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for c in &b.counters {
-            enc.clear_buffer(c, 0, None);
+        {
+            let b = &self.batch;
+            for c in &b.counters {
+                enc.clear_buffer(c, 0, None);
+            }
+            enc.clear_buffer(&b.stats, 0, None);
+            self.clear_faults(&mut enc);
+            let groups = self.params.batch_rays.div_ceil(WORKGROUP);
+            let raygen = Dispatch::Direct(groups);
+            self.dispatch(&mut enc, &self.kernels.raygen, &b.raygen_bg, raygen);
+            let one = Dispatch::Direct(1);
+            self.dispatch(&mut enc, &self.kernels.args, &b.args_bg[0], one);
         }
-        enc.clear_buffer(&b.stats, 0, None);
-        let groups = self.params.batch_rays.div_ceil(WORKGROUP);
-        self.dispatch(
-            &mut enc,
-            &self.kernels.raygen,
-            &b.raygen_bg,
-            Dispatch::Direct(groups),
-        );
-        self.dispatch(
-            &mut enc,
-            &self.kernels.args,
-            &b.args_bg[0],
-            Dispatch::Direct(1),
-        );
-        // `cur` is the counter holding the live rays of the next round.
+        // `cur` is the counter holding the live rays of the next round. With a cache, faults are
+        // served after every round; without, several rounds go in one submission.
         let mut cur = 0usize;
-        let mut per_check = 2u32;
+        let mut per_check = if self.dc.is_some() { 1 } else { 2u32 };
         let mut live_rounds = 0u32;
         loop {
+            let b = &self.batch;
             for _ in 0..per_check {
                 let o = 1 - cur;
                 let ind = Dispatch::Indirect(&b.counters[cur]);
                 self.dispatch(&mut enc, &self.kernels.trace, &b.trace_bg[cur], ind);
-                self.dispatch(
-                    &mut enc,
-                    &self.kernels.args,
-                    &b.args_bg[o],
-                    Dispatch::Direct(1),
-                );
+                let one = Dispatch::Direct(1);
+                self.dispatch(&mut enc, &self.kernels.args, &b.args_bg[o], one);
                 cur = o;
             }
             stats.rounds += per_check;
+            live_rounds += per_check;
             enc.copy_buffer_to_buffer(&b.counters[cur], 0, &b.readback, 0, 16);
-            enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, 16, 16);
+            enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, 16, 32);
+            if let Some(dc) = &self.dc {
+                let fault_bytes = 16 + 4 * u64::from(dc.fault_cap);
+                enc.copy_buffer_to_buffer(&dc.faults, 0, &b.fault_readback, 0, fault_bytes);
+                let wait_bytes = 4 * u64::from(dc.lines);
+                enc.copy_buffer_to_buffer(&dc.waiters, 0, &b.waiter_readback, 0, wait_bytes);
+            }
             gpu.queue.submit([enc.finish()]);
             let data = gpu.map_read(&b.readback)?;
             let counter: Counter = *bytemuck::from_bytes(&data[..16]);
-            let s: Stats = *bytemuck::from_bytes(&data[16..32]);
+            let s: Stats = *bytemuck::from_bytes(&data[16..48]);
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
@@ -684,18 +948,130 @@ impl<'g> Tracer<'g> {
                     s.overflows, self.params.stack_size
                 )));
             }
+            enc = gpu.device.create_command_encoder(&Default::default());
+            if self.dc.is_some() {
+                let faults = gpu.map_read(&self.batch.fault_readback)?;
+                let waiters = gpu.map_read(&self.batch.waiter_readback)?;
+                self.serve_faults(&faults, &waiters, counter.count, live_rounds, stats)?;
+                self.clear_faults(&mut enc);
+            }
             if counter.count == 0 {
                 stats.steps += u64::from(s.steps);
                 stats.tri_tests += u64::from(s.tri_tests);
-                // Rounds after the last ray finished cost an empty indirect dispatch each.
-                live_rounds += per_check;
+                stats.lookups += u64::from(s.lookups);
+                stats.hits += u64::from(s.hits);
+                stats.misses += u64::from(s.misses);
                 stats.max_live_rounds = stats.max_live_rounds.max(live_rounds);
                 return Ok(());
             }
-            live_rounds += per_check;
-            per_check = (per_check * 2).min(16);
-            enc = gpu.device.create_command_encoder(&Default::default());
+            if self.dc.is_none() {
+                per_check = (per_check * 2).min(16);
+            }
         }
+    }
+
+    fn clear_faults(&self, enc: &mut wgpu::CommandEncoder) {
+        if let Some(dc) = &self.dc {
+            enc.clear_buffer(&dc.faults, 0, Some(16));
+            enc.clear_buffer(&dc.requested, 0, None);
+            enc.clear_buffer(&dc.waiters, 0, None);
+        }
+    }
+
+    /// Fetches the blocks a round faulted on and places them in their cache lines. The first
+    /// fault for a line wins it; the others fault again next round, so every round with faults
+    /// loads at least one block and even a single-line cache finishes.
+    fn serve_faults(
+        &mut self,
+        faults: &[u8],
+        waiters: &[u8],
+        live: u32,
+        round: u32,
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        let Some(dc) = self.dc.as_mut() else {
+            return Ok(());
+        };
+        let header: FaultHeader = *bytemuck::from_bytes(&faults[..16]);
+        let n = header.count.min(dc.fault_cap) as usize;
+        if n == 0 {
+            return Ok(());
+        }
+        let list: &[u32] = bytemuck::cast_slice(&faults[16..16 + 4 * n]);
+        let waiting: &[u32] = bytemuck::cast_slice(&waiters[..4 * dc.lines as usize]);
+        let mut claimed = vec![false; 0];
+        claimed.resize(dc.lines.min(1 << 24) as usize, false);
+        let mut rec = Round {
+            batch: stats.batches,
+            round,
+            live,
+            dropped: header.dropped,
+            source: dc.source.name(),
+            ..Round::default()
+        };
+        let mut serve = Vec::new();
+        for &k in list {
+            let line = cache_line(dc.map, dc.ranks, dc.lines, k);
+            let first = !std::mem::replace(&mut claimed[line as usize], true);
+            let old = dc.tags[line as usize];
+            rec.faults.push(Fault {
+                block: k,
+                owner: dc.ranks.owner(k),
+                line,
+                evicted: (first && old != NONE_TAG).then_some(old),
+                waiting: waiting[line as usize],
+                served: first,
+            });
+            if first {
+                serve.push((k, line));
+            }
+        }
+        let bw = self.format.words() as usize;
+        let blocks: Vec<u32> = serve.iter().map(|&(k, _)| k).collect();
+        let mut data = vec![0u32; blocks.len() * bw];
+        let t = Instant::now();
+        dc.source.fetch(&blocks, &mut data)?;
+        let fetch = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        for (&(k, line), words) in serve.iter().zip(data.chunks(bw)) {
+            let row = self.params.dc_cache_row + line;
+            self.blocks_store.write_row(
+                self.gpu,
+                self.format,
+                self.params.rows_per_layer,
+                row,
+                words,
+            );
+            dc.tags[line as usize] = k;
+        }
+        self.gpu
+            .queue
+            .write_buffer(&dc.tags_buf, 0, bytemuck::cast_slice(&dc.tags));
+        let upload = t.elapsed().as_secs_f64();
+        rec.fetched_blocks = serve.len() as u32;
+        rec.fetched_bytes = (serve.len() * bw * 4) as u64;
+        rec.fetch_us = fetch * 1e6;
+        rec.upload_us = upload * 1e6;
+        stats.fetched_blocks += u64::from(rec.fetched_blocks);
+        stats.fetched_bytes += rec.fetched_bytes;
+        stats.fetch_seconds += fetch;
+        stats.upload_seconds += upload;
+        stats.fault_rounds += 1;
+        dc.trace.rounds.push(rec);
+        Ok(())
+    }
+
+    /// The trace of the last frame (rounds with faults, and its summary); empty without a cache.
+    pub fn take_trace(&mut self) -> FrameTrace {
+        self.dc
+            .as_mut()
+            .map(|d| std::mem::take(&mut d.trace))
+            .unwrap_or_default()
+    }
+
+    /// Ranks and cache lines, when this tracer has a cache.
+    pub fn cache(&self) -> Option<(Ranks, u32, CacheMap)> {
+        self.dc.as_ref().map(|d| (d.ranks, d.lines, d.map))
     }
 
     fn read_pixels(&self, first_tile: u32, n_tiles: u32, frame: &mut Frame) -> Result<()> {
@@ -755,7 +1131,7 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 36 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
+        let words = 44 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
         let out = buffer(
             gpu,
             "probe out",

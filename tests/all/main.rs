@@ -3,6 +3,7 @@
 
 mod bad_input;
 mod common;
+mod dc;
 mod gpu_vs_cpu;
 mod layout;
 mod shaders;

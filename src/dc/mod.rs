@@ -1,0 +1,206 @@
+//! The distributed cache (DESIGN.md sections 2 and 3, chapter 5.3): block ownership, the
+//! direct-mapped cache mapping, where borrowed blocks come from, and what each frame's faults
+//! cost.
+
+pub mod source;
+pub mod trace;
+
+use crate::error::{Error, Result};
+
+/// Which cache line a borrowed block goes to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CacheMap {
+    /// `(k - floor((k + (N - rank)) / N)) mod lines`: only blocks the rank does not own are
+    /// counted, so no line is wasted (Ize et al.).
+    #[default]
+    Ize,
+    /// `k mod lines` (DeMarle et al.).
+    Demarle,
+}
+
+/// This rank's place among the render ranks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ranks {
+    pub n: u32,
+    pub rank: u32,
+}
+
+impl Ranks {
+    pub fn new(n: u32, rank: u32) -> Result<Ranks> {
+        if n == 0 || rank >= n {
+            return Err(Error::Invalid(format!(
+                "rank {rank} of {n} render ranks: need 0 <= rank < ranks"
+            )));
+        }
+        Ok(Ranks { n, rank })
+    }
+    pub fn owner(&self, k: u32) -> u32 {
+        k % self.n
+    }
+    pub fn owns(&self, k: u32) -> bool {
+        self.owner(k) == self.rank
+    }
+    /// Slot of block `k` in its owner's resident array.
+    pub fn slot(&self, k: u32) -> u32 {
+        k / self.n
+    }
+    /// Blocks this rank owns out of `count`.
+    pub fn owned(&self, count: u32) -> u32 {
+        count.saturating_sub(self.rank).div_ceil(self.n)
+    }
+    /// Whether block `k` is on this rank's GPU without the cache: owned or the replicated root.
+    pub fn resident(&self, k: u32) -> bool {
+        k == 0 || self.owns(k)
+    }
+}
+
+/// The cache line of a block the rank does not own (the GPU's `cache_line` in common.wgsl).
+pub fn cache_line(map: CacheMap, ranks: Ranks, lines: u32, k: u32) -> u32 {
+    match map {
+        CacheMap::Ize => {
+            let n = ranks.n;
+            (k - (k + (n - ranks.rank)) / n) % lines
+        }
+        CacheMap::Demarle => k % lines,
+    }
+}
+
+/// How big the cache is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CacheSize {
+    /// A fraction of the model's blocks (`1/8`).
+    Fraction(f64),
+    Lines(u32),
+    Bytes(u64),
+}
+
+impl CacheSize {
+    /// Parses `1/8`, `0.125`, `64` + `lines`, or a byte size like `256MiB`, `4096KiB`, `1GiB`.
+    pub fn parse(s: &str) -> Result<CacheSize> {
+        let bad = || {
+            Error::Invalid(format!(
+                "cache size '{s}': give a fraction of the model (1/8, 0.25), a line count \
+                 (64lines) or bytes (256MiB)"
+            ))
+        };
+        let t = s.trim();
+        if let Some((a, b)) = t.split_once('/') {
+            let (a, b): (f64, f64) = (
+                a.trim().parse().map_err(|_| bad())?,
+                b.trim().parse().map_err(|_| bad())?,
+            );
+            return CacheSize::fraction(a / b).ok_or_else(bad);
+        }
+        if let Some(n) = t.strip_suffix("lines").or_else(|| t.strip_suffix("line")) {
+            let n: u32 = n.trim().parse().map_err(|_| bad())?;
+            return if n > 0 {
+                Ok(CacheSize::Lines(n))
+            } else {
+                Err(bad())
+            };
+        }
+        for (suffix, mult) in [
+            ("GiB", 1u64 << 30),
+            ("MiB", 1 << 20),
+            ("KiB", 1 << 10),
+            ("B", 1),
+        ] {
+            if let Some(n) = t.strip_suffix(suffix) {
+                let n: u64 = n.trim().parse().map_err(|_| bad())?;
+                return Ok(CacheSize::Bytes(n.checked_mul(mult).ok_or_else(bad)?));
+            }
+        }
+        let f: f64 = t.parse().map_err(|_| bad())?;
+        CacheSize::fraction(f).ok_or_else(bad)
+    }
+
+    fn fraction(f: f64) -> Option<CacheSize> {
+        (f.is_finite() && f > 0.0 && f <= 1.0).then_some(CacheSize::Fraction(f))
+    }
+
+    /// Lines for a model of `blocks` blocks of `block_bytes` (at least one).
+    pub fn lines(&self, blocks: u32, block_bytes: u32) -> u32 {
+        let l = match *self {
+            CacheSize::Fraction(f) => (f64::from(blocks) * f).round() as u64,
+            CacheSize::Lines(n) => u64::from(n),
+            CacheSize::Bytes(b) => b / u64::from(block_bytes),
+        };
+        l.clamp(1, u64::from(u32::MAX)) as u32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ize_mapping_is_dense_over_borrowed_blocks() {
+        for n in 1..8 {
+            for rank in 0..n {
+                let r = Ranks::new(n, rank).unwrap();
+                let mut dense = 0u32;
+                for k in 0..500 {
+                    if r.owns(k) {
+                        continue;
+                    }
+                    // The k-th borrowed block gets index `dense` before the modulo.
+                    assert_eq!(
+                        cache_line(CacheMap::Ize, r, u32::MAX, k),
+                        dense,
+                        "n{n} r{rank} k{k}"
+                    );
+                    dense += 1;
+                }
+                // With as many lines as borrowed blocks, every line is used exactly once.
+                let lines = dense;
+                if lines > 0 {
+                    let mut used = vec![0; lines as usize];
+                    (0..500u32)
+                        .filter(|&k| !r.owns(k))
+                        .for_each(|k| used[cache_line(CacheMap::Ize, r, lines, k) as usize] += 1);
+                    assert!(used.iter().all(|&u| u == 1));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn demarle_wastes_lines_ize_does_not() {
+        // The chapter's example: 2 ranks, 2 lines: rank 0 never uses DeMarle's line 0.
+        let r = Ranks::new(2, 0).unwrap();
+        let borrowed: Vec<u32> = (0..100).filter(|&k| !r.owns(k)).collect();
+        let lines = |m| {
+            let mut s: Vec<u32> = borrowed.iter().map(|&k| cache_line(m, r, 2, k)).collect();
+            s.sort();
+            s.dedup();
+            s
+        };
+        assert_eq!(lines(CacheMap::Demarle), vec![1]);
+        assert_eq!(lines(CacheMap::Ize), vec![0, 1]);
+    }
+
+    #[test]
+    fn ownership() {
+        let r = Ranks::new(3, 1).unwrap();
+        assert!(r.owns(4) && !r.owns(5));
+        assert_eq!(r.slot(7), 2);
+        assert_eq!(r.owned(10), 3); // 1, 4, 7
+        assert_eq!(Ranks::new(3, 0).unwrap().owned(10), 4); // 0, 3, 6, 9
+        assert!(r.resident(0) && r.resident(1) && !r.resident(2));
+        assert!(Ranks::new(2, 2).is_err());
+    }
+
+    #[test]
+    fn cache_sizes() {
+        assert_eq!(CacheSize::parse("1/8").unwrap().lines(800, 8192), 100);
+        assert_eq!(CacheSize::parse("0.5").unwrap().lines(10, 8192), 5);
+        assert_eq!(CacheSize::parse("1line").unwrap().lines(10, 8192), 1);
+        assert_eq!(CacheSize::parse("3 lines").unwrap().lines(10, 8192), 3);
+        assert_eq!(CacheSize::parse("1MiB").unwrap().lines(10, 8192), 128);
+        assert_eq!(CacheSize::parse("1/1000").unwrap().lines(10, 8192), 1);
+        for bad in ["0", "2", "1/0", "x", "0lines", "-1/8", "lots"] {
+            assert!(CacheSize::parse(bad).is_err(), "{bad}");
+        }
+    }
+}

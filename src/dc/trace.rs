@@ -1,0 +1,98 @@
+//! Per-frame fault/fetch traces (DESIGN.md section 6): what the cache did in every round, and the
+//! frame's totals, written as JSON Lines, one file per frame and rank.
+
+use crate::error::{Error, Result};
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// A block that faulted in a round.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Fault {
+    pub block: u32,
+    pub owner: u32,
+    pub line: u32,
+    /// The block the line held before, if any.
+    pub evicted: Option<u32>,
+    /// Rays that waited on this block's line in the round.
+    pub waiting: u32,
+    /// False when another fault of the round took the same line first: it faults again.
+    pub served: bool,
+}
+
+/// One fault round: the trace dispatch that faulted, then the fetch and upload that served it.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Round {
+    pub batch: u32,
+    pub round: u32,
+    /// Rays still live after the dispatch.
+    pub live: u32,
+    pub faults: Vec<Fault>,
+    /// Faults that did not fit in the GPU's fault list (they fault again).
+    pub dropped: u32,
+    pub fetched_blocks: u32,
+    pub fetched_bytes: u64,
+    pub fetch_us: f64,
+    pub upload_us: f64,
+    pub source: &'static str,
+}
+
+/// The frame's totals.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Summary {
+    pub frame: u32,
+    pub rank: u32,
+    pub ranks: u32,
+    pub cache_lines: u32,
+    pub cache_map: String,
+    pub rounds: u32,
+    pub fault_rounds: u32,
+    pub lookups: u64,
+    pub hits: u64,
+    pub misses: u64,
+    pub hit_rate: f64,
+    pub fetched_blocks: u64,
+    pub fetched_bytes: u64,
+    pub frame_ms: f64,
+    pub trace_ms: f64,
+    pub fetch_ms: f64,
+    pub upload_ms: f64,
+    pub shade_ms: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameTrace {
+    pub rounds: Vec<Round>,
+    pub summary: Summary,
+}
+
+#[derive(Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+enum Record<'a> {
+    Round(&'a Round),
+    Frame(&'a Summary),
+}
+
+impl FrameTrace {
+    pub fn file_name(dir: &Path, frame: u32, rank: u32) -> PathBuf {
+        dir.join(format!("frame_{frame:04}.rank{rank}.jsonl"))
+    }
+
+    /// Writes one JSON object per line: every round (`"type": "round"`), then the frame
+    /// (`"type": "frame"`).
+    pub fn write(&self, dir: &Path) -> Result<PathBuf> {
+        let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
+        let io = |e| Error::io(&path, e);
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&path).map_err(io)?);
+        for r in &self.rounds {
+            serde_json::to_writer(&mut w, &Record::Round(r))
+                .map_err(|e| Error::Invalid(e.to_string()))?;
+            w.write_all(b"\n").map_err(io)?;
+        }
+        serde_json::to_writer(&mut w, &Record::Frame(&self.summary))
+            .map_err(|e| Error::Invalid(e.to_string()))?;
+        w.write_all(b"\n").map_err(io)?;
+        w.flush().map_err(io)?;
+        Ok(path)
+    }
+}

@@ -1,0 +1,95 @@
+//! The distributed cache: the image (and id AOV) is bit-identical to the replicated one for any
+//! number of ranks, cache size and mapping; even a single-line cache finishes; a frame's trace
+//! adds up.
+
+use crate::common::*;
+use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::render::{DcOptions, Prepared};
+use dcrt::scene::generate::Generator;
+use dcrt::scene::{Camera, Scene};
+
+const W: u32 = 40;
+const H: u32 = 32;
+
+fn model(g: Generator, triangles: u64) -> (Prepared, Camera) {
+    let scene = Scene::generated(g, triangles, W, H);
+    let model = scene.load_model().unwrap();
+    let camera = scene.camera_or_default(&model);
+    (prepare(model), camera)
+}
+
+fn same(a: &Frame, b: &Frame, what: &str) {
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(
+            bytemuck::bytes_of(p),
+            bytemuck::bytes_of(q),
+            "{what}: pixel {i}"
+        );
+    }
+}
+
+fn sweep(g: Generator) {
+    let gpu = gpu();
+    let (p, camera) = model(g, 20_000);
+    let basis = camera.basis(W, H);
+    let (reference, _) = render(&gpu, &p, &camera, W, H, Settings::default());
+    assert!(reference.pixels.iter().any(|px| !is_miss(px)));
+    let sizes = ["1line", "1/32", "1/8", "1/2", "1/1"];
+    for n in [1u32, 2, 3, 4, 7] {
+        for size in sizes {
+            for map in [CacheMap::Ize, CacheMap::Demarle] {
+                let rank = n / 2;
+                let o = DcOptions {
+                    ranks: n,
+                    rank,
+                    cache: CacheSize::parse(size).unwrap(),
+                    map,
+                };
+                let t0 = std::time::Instant::now();
+                let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
+                let t1 = t0.elapsed();
+                let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                let what = format!("{g:?} N={n} rank {rank} cache {size} {map:?}");
+                eprintln!(
+                    "{what}: setup {t1:?} frame {:.3}s rounds {} fetched {}",
+                    stats.seconds, stats.rounds, stats.fetched_blocks
+                );
+                same(&reference, &frame, &what);
+                let trace = t.take_trace();
+                let s = &trace.summary;
+                assert_eq!(s.hits + s.misses, s.lookups, "{what}");
+                let served: u64 = trace
+                    .rounds
+                    .iter()
+                    .map(|r| r.faults.iter().filter(|f| f.served).count() as u64)
+                    .sum();
+                assert_eq!(s.fetched_blocks, served, "{what}");
+                assert_eq!(stats.fetched_blocks, served, "{what}");
+                if n > 1 {
+                    assert!(s.lookups > 0, "{what}: borrowed blocks are looked up");
+                    assert!(s.fetched_blocks > 0, "{what}: a cold cache fetches");
+                }
+                for r in &trace.rounds {
+                    assert!(
+                        r.fetched_blocks >= 1,
+                        "{what}: every fault round loads a block"
+                    );
+                    for f in r.faults.iter() {
+                        assert_ne!(f.owner, rank, "{what}: a rank never fetches its own block");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn rm_dc_images_match_replicated() {
+    sweep(Generator::Rm);
+}
+
+#[test]
+fn assembly_dc_images_match_replicated() {
+    sweep(Generator::Assembly);
+}
