@@ -20,7 +20,13 @@ struct Stats {
     lookups: atomic<u32>,
     hits: atomic<u32>,
     misses: atomic<u32>,
-    unused: u32,
+    // Node visits, and how often a visit's node block differs from the previous visit's: the
+    // chapter's "traversal steps per block".
+    node_visits: atomic<u32>,
+    block_entries: atomic<u32>,
+    unused0: u32,
+    unused1: u32,
+    unused2: u32,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 
@@ -32,6 +38,8 @@ var<workgroup> wg_suspended: atomic<u32>;
 var<workgroup> wg_lookups: atomic<u32>;
 var<workgroup> wg_hits: atomic<u32>;
 var<workgroup> wg_misses: atomic<u32>;
+var<workgroup> wg_visits: atomic<u32>;
+var<workgroup> wg_entries: atomic<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -48,6 +56,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var iters = 0u;
         var tests = 0u;
         var suspended = false;
+        var visits = 0u;
+        var entries = 0u;
+        var last_block = NONE;
         // The node being visited, already read when `have`: a child chosen at its parent is not
         // read twice, and a resumed ray needs only the block it faulted on.
         var cur: Node;
@@ -95,6 +106,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     break;
                 }
                 iters += 1u;
+                visits += 1u;
+                entries += u32(l.x != last_block);
+                last_block = l.x;
                 let a = node_at(row, l.y);
                 let b = node_at(row, l.y + 1u);
                 let ta = box_entry(a.lo, a.hi, org, inv, r.t);
@@ -170,6 +184,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             atomicAdd(&stats.overflows, 1u);
         }
         atomicAdd(&wg_steps, iters);
+        atomicAdd(&wg_visits, visits);
+        atomicAdd(&wg_entries, entries);
         atomicAdd(&wg_tris, tests);
         if suspended {
             atomicAdd(&wg_suspended, 1u);
@@ -191,6 +207,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&stats.steps, atomicLoad(&wg_steps));
         atomicAdd(&stats.tri_tests, atomicLoad(&wg_tris));
         atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
+        atomicAdd(&stats.node_visits, atomicLoad(&wg_visits));
+        atomicAdd(&stats.block_entries, atomicLoad(&wg_entries));
         if DC {
             atomicAdd(&stats.lookups, atomicLoad(&wg_lookups));
             atomicAdd(&stats.hits, atomicLoad(&wg_hits));

@@ -4,11 +4,12 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
+use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, MAX_STEP_BUDGET, Settings};
 use dcrt::output::{self, Aov};
-use dcrt::render::{Loaded, Prepared, render_frame};
+use dcrt::render::{DcOptions, Loaded, Prepared, render_frame};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 use std::path::{Path, PathBuf};
@@ -90,8 +91,50 @@ struct RenderArgs {
     width: Option<u32>,
     #[arg(long)]
     height: Option<u32>,
+    /// Frames to render, orbiting the camera about the focal point (one turn in all); outputs
+    /// are numbered (out_0000.png ...). The cache persists between frames.
+    #[arg(long, default_value_t = 1)]
+    frames: u32,
+    /// Write each frame's fault/fetch trace (JSON Lines) into this directory.
+    #[arg(long)]
+    trace: Option<PathBuf>,
     #[command(flatten)]
     gpu: GpuArgs,
+    #[command(flatten)]
+    dc: DcArgs,
+}
+
+#[derive(Args, Clone)]
+struct DcArgs {
+    /// Split the model over N in-process ranks and render through a distributed cache.
+    #[arg(long)]
+    virtual_ranks: Option<u32>,
+    /// The rank this process renders as (with --virtual-ranks).
+    #[arg(long, default_value_t = 0)]
+    rank: u32,
+    /// Cache size: a fraction of the model (1/8), lines (64lines) or bytes (256MiB).
+    #[arg(long, default_value = "1/8")]
+    cache: String,
+    #[arg(long, value_enum, default_value_t = CacheMap::Ize)]
+    cache_map: CacheMap,
+    /// Everything resident, no cache (the default without --virtual-ranks).
+    #[arg(long, conflicts_with = "virtual_ranks")]
+    replicate: bool,
+}
+
+impl DcArgs {
+    fn options(&self) -> Result<Option<DcOptions>> {
+        let Some(n) = self.virtual_ranks else {
+            return Ok(None);
+        };
+        dcrt::dc::Ranks::new(n, self.rank)?;
+        Ok(Some(DcOptions {
+            ranks: n,
+            rank: self.rank,
+            cache: CacheSize::parse(&self.cache)?,
+            map: self.cache_map,
+        }))
+    }
 }
 
 #[derive(Args)]
@@ -153,9 +196,17 @@ fn render(a: RenderArgs) -> Result<()> {
     if !a.aov.is_empty() && a.exr.is_none() {
         bail!("--aov needs --exr FILE: the AOVs are EXR channels");
     }
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
     for out in std::iter::once(&a.output).chain(a.exr.as_ref()) {
         check_writable(out)?;
     }
+    if let Some(dir) = &a.trace {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
+    }
+    let dc = a.dc.options()?;
     let format = Format::new(a.gpu.block_size)?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let width = a.width.unwrap_or(loaded.width);
@@ -163,35 +214,87 @@ fn render(a: RenderArgs) -> Result<()> {
     check_image_size(width, height)?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
-    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu), None)?;
-    let (frame, stats) = render_frame(
-        &mut tracer,
-        &loaded.camera,
-        width,
-        height,
-        loaded.background,
-    )?;
-    output::write_png(&a.output, &frame)?;
-    if let Some(exr) = &a.exr {
-        output::write_exr(exr, &frame, &a.aov)?;
+    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu), dc.as_ref())?;
+    match &dc {
+        Some(o) => {
+            let m = o.memory(&loaded.blocks)?;
+            eprintln!(
+                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}) of a {:.1} MiB \
+                 model",
+                o.rank,
+                o.ranks,
+                m.resident_bytes as f64 / 1048576.0,
+                m.cache_bytes as f64 / 1048576.0,
+                o.cache.lines(loaded.blocks.count(), format.block_bytes),
+                o.map,
+                loaded.blocks.bytes() as f64 / 1048576.0
+            );
+        }
+        None => eprintln!(
+            "replicated: {:.1} MiB of blocks",
+            loaded.blocks.bytes() as f64 / 1048576.0
+        ),
     }
-    eprintln!(
-        "{} triangles{}, {}x{} traced in {:.1} ms ({} rounds), wrote {}{}",
-        loaded.triangles,
-        loaded
-            .build_seconds
-            .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
-            .unwrap_or_default(),
-        width,
-        height,
-        stats.seconds * 1e3,
-        stats.max_live_rounds,
-        a.output.display(),
-        a.exr
-            .as_ref()
-            .map(|p| format!(" and {}", p.display()))
-            .unwrap_or_default()
-    );
+    for i in 0..a.frames {
+        let camera = loaded
+            .camera
+            .orbit(std::f64::consts::TAU * f64::from(i) / f64::from(a.frames));
+        let (frame, stats) = render_frame(&mut tracer, &camera, width, height, loaded.background)?;
+        let numbered = |p: &Path| -> PathBuf {
+            if a.frames == 1 {
+                return p.to_path_buf();
+            }
+            let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("out");
+            let ext = p.extension().and_then(|s| s.to_str()).unwrap_or("png");
+            p.with_file_name(format!("{stem}_{i:04}.{ext}"))
+        };
+        let png = numbered(&a.output);
+        output::write_png(&png, &frame)?;
+        if let Some(exr) = &a.exr {
+            output::write_exr(&numbered(exr), &frame, &a.aov)?;
+        }
+        let mut trace = tracer.take_trace();
+        if let Some(dir) = &a.trace {
+            trace.summary.frame = i;
+            if dc.is_none() {
+                trace.summary.frame_ms = stats.seconds * 1e3;
+                trace.summary.trace_ms = stats.trace_seconds * 1e3;
+                trace.summary.shade_ms = stats.shade_seconds * 1e3;
+                trace.summary.rounds = stats.rounds;
+                trace.summary.ranks = 1;
+                trace.summary.hit_rate = 1.0;
+            }
+            trace.write(dir)?;
+        }
+        eprintln!(
+            "frame {i}: {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+            loaded.triangles,
+            loaded
+                .build_seconds
+                .filter(|_| i == 0)
+                .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
+                .unwrap_or_default(),
+            width,
+            height,
+            stats.seconds * 1e3,
+            stats.max_live_rounds,
+            if dc.is_some() {
+                format!(
+                    ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
+                    stats.fault_rounds,
+                    if stats.lookups > 0 {
+                        stats.hits as f64 / stats.lookups as f64
+                    } else {
+                        1.0
+                    },
+                    stats.fetched_blocks
+                )
+            } else {
+                String::new()
+            },
+            png.display()
+        );
+    }
     Ok(())
 }
 

@@ -115,8 +115,12 @@ pub struct Stats {
     pub lookups: u32,
     pub hits: u32,
     pub misses: u32,
-    pub unused: u32,
+    /// Inner-node visits, and how many of them moved to another node block than the previous.
+    pub node_visits: u32,
+    pub block_entries: u32,
+    pub unused: [u32; 3],
 }
+const _: () = assert!(std::mem::size_of::<Stats>() == 48);
 
 /// `Faults` in `shaders/common.wgsl`, before its list of faulted blocks.
 #[repr(C)]

@@ -87,6 +87,9 @@ pub struct FrameStats {
     pub upload_seconds: f64,
     /// Rounds that had faults.
     pub fault_rounds: u32,
+    /// Inner-node visits and node-block entries (a visit in another block than the previous).
+    pub node_visits: u64,
+    pub block_entries: u64,
 }
 
 /// A traced frame: one `Pixel` per image pixel, row-major, y down.
@@ -738,9 +741,9 @@ impl<'g> Tracer<'g> {
             buffer(gpu, "counter0", 16, counter_usage),
             buffer(gpu, "counter1", 16, counter_usage),
         ];
-        let stats = buffer(gpu, "stats", 32, U::STORAGE | U::COPY_SRC | U::COPY_DST);
+        let stats = buffer(gpu, "stats", 48, U::STORAGE | U::COPY_SRC | U::COPY_DST);
         let pixels = buffer(gpu, "pixels", n * 32, U::STORAGE | U::COPY_SRC);
-        let readback = buffer(gpu, "readback", 48, U::MAP_READ | U::COPY_DST);
+        let readback = buffer(gpu, "readback", 64, U::MAP_READ | U::COPY_DST);
         let fault_readback = buffer(
             gpu,
             "fault readback",
@@ -930,7 +933,7 @@ impl<'g> Tracer<'g> {
             stats.rounds += per_check;
             live_rounds += per_check;
             enc.copy_buffer_to_buffer(&b.counters[cur], 0, &b.readback, 0, 16);
-            enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, 16, 32);
+            enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, 16, 48);
             if let Some(dc) = &self.dc {
                 let fault_bytes = 16 + 4 * u64::from(dc.fault_cap);
                 enc.copy_buffer_to_buffer(&dc.faults, 0, &b.fault_readback, 0, fault_bytes);
@@ -940,7 +943,7 @@ impl<'g> Tracer<'g> {
             gpu.queue.submit([enc.finish()]);
             let data = gpu.map_read(&b.readback)?;
             let counter: Counter = *bytemuck::from_bytes(&data[..16]);
-            let s: Stats = *bytemuck::from_bytes(&data[16..48]);
+            let s: Stats = *bytemuck::from_bytes(&data[16..64]);
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
@@ -961,6 +964,8 @@ impl<'g> Tracer<'g> {
                 stats.lookups += u64::from(s.lookups);
                 stats.hits += u64::from(s.hits);
                 stats.misses += u64::from(s.misses);
+                stats.node_visits += u64::from(s.node_visits);
+                stats.block_entries += u64::from(s.block_entries);
                 stats.max_live_rounds = stats.max_live_rounds.max(live_rounds);
                 return Ok(());
             }
