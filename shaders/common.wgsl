@@ -30,11 +30,6 @@ struct Params {
     stack_size: u32,
     mesh_count: u32,
     node_blocks: u32,
-    rows_per_layer: u32,
-    nodes_per_block: u32,
-    tris_per_block: u32,
-    id_word: u32,
-    texels_per_block: u32,
     // Distributed cache (DESIGN.md sections 2, 3): ranks N, this rank, cache lines, mapping
     // (0 Ize, 1 DeMarle), first cache row, the replicated root block's row, fault list capacity.
     dc_ranks: u32,
@@ -47,7 +42,15 @@ struct Params {
     pad0: u32,
     pad1: u32,
     pad2: u32,
+    pad3: u32,
 }
+
+// Fixed for a model: pipeline constants, so that the driver turns the divisions of block
+// addressing into multiplies and shifts (CPU drivers otherwise divide lane by lane).
+override NODES_PER_BLOCK: u32 = 256u;
+override TRIS_PER_BLOCK: u32 = 204u;
+override TEXELS_PER_BLOCK: u32 = 512u;
+override ROWS_PER_LAYER: u32 = 16384u;
 
 // Mirrors gpu::layout::RayState: one per ray of a batch, kept between trace dispatches.
 struct RayState {
@@ -122,7 +125,9 @@ struct Faults {
     pad1: u32,
     blocks: array<u32>,
 }
-@group(0) @binding(3) var<storage, read> tags: array<u32>;          // block in each cache line
+// The row of every block on this GPU (resident or cached), NONE when absent: one load replaces
+// the ownership and tag arithmetic. The host updates it between rounds.
+@group(0) @binding(3) var<storage, read> block_rows: array<u32>;
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
@@ -145,20 +150,17 @@ fn locate(k: u32) -> u32 {
     if !DC {
         return k;
     }
-    if k == 0u {
-        return params.dc_root_row;
-    }
-    if k % params.dc_ranks == params.dc_rank {
-        return k / params.dc_ranks;
+    let row = block_rows[k];
+    if row < params.dc_cache_row {
+        return row;  // owned, or the replicated root
     }
     dc_lookups += 1u;
-    let line = cache_line(k);
-    if tags[line] == k {
+    if row != NONE {
         dc_hits += 1u;
-        return params.dc_cache_row + line;
+        return row;
     }
     dc_misses += 1u;
-    atomicAdd(&waiters[line], 1u);
+    atomicAdd(&waiters[cache_line(k)], 1u);
     let bit = 1u << (k % 32u);
     if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
         let i = atomicAdd(&faults.count, 1u);
@@ -173,13 +175,13 @@ fn locate(k: u32) -> u32 {
 
 // (block id, slot in the block) of node i and of triangle t.
 fn node_loc(i: u32) -> vec2<u32> {
-    let b = i / params.nodes_per_block;
-    return vec2(b, i - b * params.nodes_per_block);
+    let b = i / NODES_PER_BLOCK;
+    return vec2(b, i - b * NODES_PER_BLOCK);
 }
 
 fn tri_loc(t: u32) -> vec2<u32> {
-    let b = t / params.tris_per_block;
-    return vec2(params.node_blocks + b, t - b * params.tris_per_block);
+    let b = t / TRIS_PER_BLOCK;
+    return vec2(params.node_blocks + b, t - b * TRIS_PER_BLOCK);
 }
 
 fn node_at(row: u32, slot: u32) -> Node {
@@ -233,7 +235,7 @@ fn tri_at(row: u32, slot: u32) -> Tri {
 }
 
 fn prim_id_at(row: u32, slot: u32) -> u32 {
-    return word_at(row, params.id_word + slot);
+    return word_at(row, 9u * TRIS_PER_BLOCK + slot);
 }
 
 // Reciprocal of a direction, clamped so that no component is infinite: WGSL does not promise

@@ -34,11 +34,10 @@ fn main() {
     put4(p.background);
     put(p.width); put(p.height); put(p.tiles_x); put(p.first_tile);
     put(p.batch_rays); put(p.step_budget); put(p.stack_size); put(p.mesh_count);
-    put(p.node_blocks); put(p.rows_per_layer); put(p.nodes_per_block); put(p.tris_per_block);
-    put(p.id_word); put(p.texels_per_block);
+    put(p.node_blocks);
     put(p.dc_ranks); put(p.dc_rank); put(p.dc_lines); put(p.dc_map);
     put(p.dc_cache_row); put(p.dc_root_row); put(p.dc_fault_cap);
-    put(p.pad0); put(p.pad1); put(p.pad2);
+    put(p.pad0); put(p.pad1); put(p.pad2); put(p.pad3);
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);
         let n = node_at(locate(l.x), l.y);

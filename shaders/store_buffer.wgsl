@@ -3,5 +3,5 @@
 @group(0) @binding(1) var<storage, read> blocks: array<vec4<u32>>;
 
 fn texel(block: u32, t: u32) -> vec4<u32> {
-    return blocks[block * params.texels_per_block + t];
+    return blocks[block * TEXELS_PER_BLOCK + t];
 }

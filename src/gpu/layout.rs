@@ -22,11 +22,6 @@ pub struct Params {
     pub stack_size: u32,
     pub mesh_count: u32,
     pub node_blocks: u32,
-    pub rows_per_layer: u32,
-    pub nodes_per_block: u32,
-    pub tris_per_block: u32,
-    pub id_word: u32,
-    pub texels_per_block: u32,
     pub dc_ranks: u32,
     pub dc_rank: u32,
     pub dc_lines: u32,
@@ -38,8 +33,9 @@ pub struct Params {
     pub pad0: u32,
     pub pad1: u32,
     pub pad2: u32,
+    pub pad3: u32,
 }
-const _: () = assert!(std::mem::size_of::<Params>() == 176);
+const _: () = assert!(std::mem::size_of::<Params>() == 160);
 
 /// `RayState` in `shaders/common.wgsl`.
 #[repr(C)]

@@ -135,6 +135,7 @@ pub struct Tracer<'g> {
     settings: Settings,
     layouts: Layouts,
     blocks_store: BlockStore,
+    rows_per_layer: u32,
     format: Format,
     dc: Option<Dc>,
 }
@@ -214,6 +215,18 @@ struct Layouts {
     probe: wgpu::BindGroupLayout,
 }
 
+impl Layouts {
+    fn for_kernel(&self, name: &str) -> &wgpu::BindGroupLayout {
+        match name {
+            "raygen" => &self.raygen,
+            "trace" => &self.trace,
+            "args" => &self.args,
+            "shade" => &self.shade,
+            _ => &self.probe,
+        }
+    }
+}
+
 fn layouts(gpu: &Gpu, store: Store) -> Layouts {
     let blocks = match store {
         Store::Texture => wgpu::BindGroupLayoutEntry {
@@ -276,7 +289,7 @@ fn layouts(gpu: &Gpu, store: Store) -> Layouts {
 fn pipeline(
     gpu: &Gpu,
     store: Store,
-    dc: bool,
+    constants: &[(&str, f64)],
     name: &str,
     scene: &wgpu::BindGroupLayout,
     own: &wgpu::BindGroupLayout,
@@ -301,7 +314,7 @@ fn pipeline(
             module: &module,
             entry_point: Some("main"),
             compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("DC", if dc { 1.0 } else { 0.0 })],
+                constants,
                 ..Default::default()
             },
             cache: None,
@@ -485,7 +498,9 @@ struct Dc {
     source: Box<dyn BlockSource>,
     /// Block in each line (`NONE` when empty), as the GPU's tag table holds it.
     tags: Vec<u32>,
-    tags_buf: wgpu::Buffer,
+    /// Row of every block on this GPU (`NONE` when absent): the GPU's `block_rows`.
+    block_rows: Vec<u32>,
+    rows_buf: wgpu::Buffer,
     faults: wgpu::Buffer,
     requested: wgpu::Buffer,
     waiters: wgpu::Buffer,
@@ -532,15 +547,7 @@ impl<'g> Tracer<'g> {
             lines,
         };
         let st = settings.store;
-        let use_dc = dc.is_some();
         let l = layouts(gpu, st);
-        let kernels = Kernels {
-            raygen: pipeline(gpu, st, use_dc, "raygen", &l.scene, &l.raygen),
-            trace: pipeline(gpu, st, use_dc, "trace", &l.scene, &l.trace),
-            args: pipeline(gpu, st, use_dc, "args", &l.scene, &l.args),
-            shade: pipeline(gpu, st, use_dc, "shade", &l.scene, &l.shade),
-            probe: pipeline(gpu, st, use_dc, "probe", &l.scene, &l.probe),
-        };
         let (store, rows_per_layer) = match st {
             Store::Texture => {
                 let (texture, per_layer) = upload_texture(gpu, &rows)?;
@@ -550,7 +557,22 @@ impl<'g> Tracer<'g> {
                 });
                 (BlockStore::Texture(texture, view), per_layer)
             }
-            Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, &rows)?), 0),
+            Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, &rows)?), 1),
+        };
+        let constants = [
+            ("DC", if dc.is_some() { 1.0 } else { 0.0 }),
+            ("NODES_PER_BLOCK", f64::from(format.nodes_per_block())),
+            ("TRIS_PER_BLOCK", f64::from(format.tris_per_block())),
+            ("TEXELS_PER_BLOCK", f64::from(format.texels())),
+            ("ROWS_PER_LAYER", f64::from(rows_per_layer)),
+        ];
+        let k = |name| pipeline(gpu, st, &constants, name, &l.scene, l.for_kernel(name));
+        let kernels = Kernels {
+            raygen: k("raygen"),
+            trace: k("trace"),
+            args: k("args"),
+            shade: k("shade"),
+            probe: k("probe"),
         };
         let meshes: Vec<MeshInfo> = model
             .meshes
@@ -576,11 +598,6 @@ impl<'g> Tracer<'g> {
             stack_size,
             mesh_count: meshes.len() as u32,
             node_blocks: model.node_blocks,
-            rows_per_layer,
-            nodes_per_block: format.nodes_per_block(),
-            tris_per_block: format.tris_per_block(),
-            id_word: format.id_word(),
-            texels_per_block: format.texels(),
             dc_ranks: 1,
             ..Params::default()
         };
@@ -607,11 +624,20 @@ impl<'g> Tracer<'g> {
                 params.dc_root_row = if d.ranks.owns(0) { 0 } else { resident - 1 };
                 params.dc_fault_cap = FAULT_CAP;
                 let tags = vec![NONE_TAG; d.lines as usize];
-                let tags_buf = gpu
+                // Resident blocks at their rows, the root at its row, the rest absent.
+                let mut block_rows = vec![NONE_TAG; blocks as usize];
+                for (k, row) in block_rows.iter_mut().enumerate() {
+                    let k = k as u32;
+                    if d.ranks.owns(k) {
+                        *row = d.ranks.slot(k);
+                    }
+                }
+                block_rows[0] = params.dc_root_row;
+                let rows_buf = gpu
                     .device
                     .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("tags"),
-                        contents: bytemuck::cast_slice(&tags),
+                        label: Some("block rows"),
+                        contents: bytemuck::cast_slice(&block_rows),
                         usage: U::STORAGE | U::COPY_DST,
                     });
                 Some(Dc {
@@ -620,7 +646,8 @@ impl<'g> Tracer<'g> {
                     map: d.map,
                     source: d.source,
                     tags,
-                    tags_buf,
+                    block_rows,
+                    rows_buf,
                     faults: buffer(
                         gpu,
                         "faults",
@@ -648,7 +675,7 @@ impl<'g> Tracer<'g> {
         let placeholder = || buffer(gpu, "unused", 32, U::STORAGE);
         let (p3, p4, p5, p6);
         let dc_bufs: [&wgpu::Buffer; 4] = match &dc {
-            Some(d) => [&d.tags_buf, &d.faults, &d.requested, &d.waiters],
+            Some(d) => [&d.rows_buf, &d.faults, &d.requested, &d.waiters],
             None => {
                 p3 = placeholder();
                 p4 = placeholder();
@@ -700,6 +727,7 @@ impl<'g> Tracer<'g> {
             settings,
             layouts: l,
             blocks_store: store,
+            rows_per_layer,
             format,
             dc,
         })
@@ -1040,18 +1068,20 @@ impl<'g> Tracer<'g> {
         let t = Instant::now();
         for (&(k, line), words) in serve.iter().zip(data.chunks(bw)) {
             let row = self.params.dc_cache_row + line;
-            self.blocks_store.write_row(
-                self.gpu,
-                self.format,
-                self.params.rows_per_layer,
-                row,
-                words,
-            );
-            dc.tags[line as usize] = k;
+            self.blocks_store
+                .write_row(self.gpu, self.format, self.rows_per_layer, row, words);
+            let old = std::mem::replace(&mut dc.tags[line as usize], k);
+            for (b, r) in [(old, NONE_TAG), (k, row)] {
+                if b != NONE_TAG {
+                    dc.block_rows[b as usize] = r;
+                    self.gpu.queue.write_buffer(
+                        &dc.rows_buf,
+                        u64::from(b) * 4,
+                        bytemuck::bytes_of(&r),
+                    );
+                }
+            }
         }
-        self.gpu
-            .queue
-            .write_buffer(&dc.tags_buf, 0, bytemuck::cast_slice(&dc.tags));
         let upload = t.elapsed().as_secs_f64();
         rec.fetched_blocks = serve.len() as u32;
         rec.fetched_bytes = (serve.len() * bw * 4) as u64;
@@ -1136,7 +1166,7 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 44 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
+        let words = 40 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
         let out = buffer(
             gpu,
             "probe out",
