@@ -230,7 +230,7 @@ fn render(a: RenderArgs) -> Result<()> {
     let mut tracer = loaded.tracer(&gpu, settings(&a.gpu), dc.as_ref())?;
     match &dc {
         Some(o) => {
-            let m = o.memory(&loaded.blocks)?;
+            let m = o.memory(loaded.block_count(), loaded.format())?;
             eprintln!(
                 "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}) of a {:.1} MiB \
                  model",
@@ -238,14 +238,15 @@ fn render(a: RenderArgs) -> Result<()> {
                 o.ranks,
                 m.resident_bytes as f64 / 1048576.0,
                 m.cache_bytes as f64 / 1048576.0,
-                o.cache.lines(loaded.blocks.count(), format.block_bytes),
+                o.cache
+                    .lines(loaded.block_count(), loaded.format().block_bytes),
                 o.map,
-                loaded.blocks.bytes() as f64 / 1048576.0
+                loaded.model_bytes() as f64 / 1048576.0
             );
         }
         None => eprintln!(
             "replicated: {:.1} MiB of blocks",
-            loaded.blocks.bytes() as f64 / 1048576.0
+            loaded.model_bytes() as f64 / 1048576.0
         ),
     }
     for i in 0..a.frames {
@@ -679,7 +680,7 @@ fn bench_dc(
         let (resident, cache, lines) = match cfg {
             None => (blocks.bytes(), 0, 0),
             Some(o) => {
-                let m = o.memory(blocks)?;
+                let m = o.memory(blocks.count(), blocks.format)?;
                 (
                     m.resident_bytes,
                     m.cache_bytes,
@@ -736,7 +737,7 @@ fn bench_dc(
                         cache: cache_for_memory,
                         map: CacheMap::Ize,
                     }
-                    .memory(blocks)
+                    .memory(blocks.count(), blocks.format)
                     .map(|m| m.resident_bytes)
                 })
                 .collect::<dcrt::Result<Vec<u64>>>()

@@ -4,7 +4,7 @@
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
 use crate::bvh::{Bvh, Preset};
-use crate::dc::source::VirtualRanks;
+use crate::dc::source::{LocalFile, VirtualRanks};
 use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
@@ -99,9 +99,16 @@ impl Prepared {
     }
 }
 
+/// Where a render's blocks are: built now, or in a block file that each rank reads its own part
+/// of.
+pub enum Source {
+    Built(Blocks),
+    File(DcbFile),
+}
+
 /// What a render needs, from a scene (built now) or a block file (built before).
 pub struct Loaded {
-    pub blocks: Blocks,
+    pub source: Source,
     pub meshes: Meshes,
     pub depth: u32,
     pub triangles: u64,
@@ -136,11 +143,12 @@ impl Loaded {
             height: scene.height,
             background: scene.background,
             build_seconds: Some((p.bvh.build_time + p.bvh.layout_time).as_secs_f64()),
-            blocks: p.blocks,
+            source: Source::Built(p.blocks),
         })
     }
 
     /// A block file; a scene naming it may override the camera, image size and background.
+    /// Only the header, metadata and checksums are read here: blocks are read by `tracer`.
     pub fn from_dcb(path: &Path, scene: Option<&Scene>) -> Result<Loaded> {
         let f = DcbFile::open(path)?;
         let m = &f.meta;
@@ -151,7 +159,6 @@ impl Loaded {
                 "metadata: inconsistent mesh table",
             ));
         }
-        let blocks = f.read_all()?;
         let (camera, width, height, background) = match scene {
             Some(s) => (
                 s.camera.unwrap_or(m.camera),
@@ -173,17 +180,62 @@ impl Loaded {
             height,
             background,
             build_seconds: None,
-            blocks,
+            source: Source::File(f),
         })
     }
 
+    pub fn format(&self) -> Format {
+        match &self.source {
+            Source::Built(b) => b.format,
+            Source::File(f) => f.format,
+        }
+    }
+
+    pub fn block_count(&self) -> u32 {
+        match &self.source {
+            Source::Built(b) => b.count(),
+            Source::File(f) => f.count(),
+        }
+    }
+
+    pub fn model_bytes(&self) -> u64 {
+        u64::from(self.block_count()) * u64::from(self.format().block_bytes)
+    }
+
+    /// A tracer for the whole model, or for one rank of a distributed cache. From a block file,
+    /// a rank reads only its own blocks and the root; borrowed blocks are read from the file
+    /// when they fault.
     pub fn tracer<'g>(
         &self,
         gpu: &'g Gpu,
         settings: Settings,
         dc: Option<&DcOptions>,
     ) -> Result<Tracer<'g>> {
-        tracer(gpu, &self.blocks, &self.meshes, self.depth, settings, dc)
+        let f = match &self.source {
+            Source::Built(b) => return tracer(gpu, b, &self.meshes, self.depth, settings, dc),
+            Source::File(f) => f,
+        };
+        let Some(o) = dc else {
+            let blocks = f.read_all(1)?;
+            return tracer(gpu, &blocks, &self.meshes, self.depth, settings, None);
+        };
+        let ranks = Ranks::new(o.ranks, o.rank)?;
+        let resident = f.read_resident(ranks)?;
+        let model = GpuModel {
+            format: f.format,
+            node_blocks: f.node_blocks,
+            tri_blocks: f.tri_blocks,
+            resident: &resident,
+            meshes: &self.meshes,
+            depth: self.depth,
+        };
+        let setup = DcSetup {
+            ranks,
+            lines: o.cache.lines(f.count(), f.format.block_bytes),
+            map: o.map,
+            source: Box::new(LocalFile::new(DcbFile::open(&f.path)?, ranks)),
+        };
+        Tracer::new(gpu, &model, settings, Some(setup))
     }
 }
 
@@ -205,14 +257,13 @@ pub struct RankMemory {
 }
 
 impl DcOptions {
-    pub fn memory(&self, blocks: &Blocks) -> Result<RankMemory> {
+    pub fn memory(&self, count: u32, format: Format) -> Result<RankMemory> {
         let ranks = Ranks::new(self.ranks, self.rank)?;
-        let bb = u64::from(blocks.format.block_bytes);
-        let resident = u64::from(ranks.owned(blocks.count()) + u32::from(!ranks.owns(0)));
+        let bb = u64::from(format.block_bytes);
+        let resident = u64::from(ranks.owned(count) + u32::from(!ranks.owns(0)));
         Ok(RankMemory {
             resident_bytes: resident * bb,
-            cache_bytes: u64::from(self.cache.lines(blocks.count(), blocks.format.block_bytes))
-                * bb,
+            cache_bytes: u64::from(self.cache.lines(count, format.block_bytes)) * bb,
         })
     }
 }

@@ -185,12 +185,12 @@ impl DcbFile {
         Ok(())
     }
 
-    /// Every block, checked (a single-process render).
-    pub fn read_all(&self) -> Result<Blocks> {
+    /// Every block, checked (a single-process render); `ranks` names owners in errors.
+    pub fn read_all(&self, ranks: u32) -> Result<Blocks> {
         let bw = self.format.words() as usize;
         let mut words = vec![0u32; self.count() as usize * bw];
         for (k, chunk) in words.chunks_mut(bw).enumerate() {
-            self.read_block_into(k as u32, 0, chunk)?;
+            self.read_block_into(k as u32, k as u32 % ranks.max(1), chunk)?;
         }
         Ok(Blocks {
             format: self.format,
@@ -198,6 +198,23 @@ impl DcbFile {
             tri_blocks: self.tri_blocks,
             words,
         })
+    }
+}
+
+impl DcbFile {
+    /// What one rank keeps on its GPU without the cache, and the only blocks it reads: its own
+    /// blocks by slot, then the root block unless it owns it.
+    pub fn read_resident(&self, ranks: crate::dc::Ranks) -> Result<Vec<u32>> {
+        let bw = self.format.words() as usize;
+        let own = ranks.owned(self.count());
+        let rows = own + u32::from(!ranks.owns(0));
+        let mut words = vec![0u32; rows as usize * bw];
+        for (s, chunk) in words.chunks_mut(bw).enumerate() {
+            let s = s as u32;
+            let k = if s < own { s * ranks.n + ranks.rank } else { 0 };
+            self.read_block_into(k, ranks.owner(k), chunk)?;
+        }
+        Ok(words)
     }
 }
 
@@ -245,7 +262,17 @@ mod tests {
         write(&p, &blocks, &meta).unwrap();
         let f = DcbFile::open(&p).unwrap();
         assert_eq!(f.meta, meta);
-        assert_eq!(f.read_all().unwrap().words, blocks.words);
+        assert_eq!(f.read_all(1).unwrap().words, blocks.words);
+        // A rank reads its own blocks and the root, nothing else.
+        let r = crate::dc::Ranks::new(3, 2).unwrap();
+        let words = f.read_resident(r).unwrap();
+        let bw = blocks.format.words() as usize;
+        let own: Vec<u32> = (0..blocks.count()).filter(|k| k % 3 == 2).collect();
+        assert_eq!(words.len(), (own.len() + 1) * bw);
+        for (s, &k) in own.iter().enumerate() {
+            assert_eq!(&words[s * bw..(s + 1) * bw], blocks.block(k));
+        }
+        assert_eq!(&words[own.len() * bw..], blocks.block(0));
         std::fs::remove_file(p).unwrap();
     }
 
@@ -257,7 +284,7 @@ mod tests {
         let good = std::fs::read(&p).unwrap();
         let check = |bytes: &[u8], want: &str| {
             std::fs::write(&p, bytes).unwrap();
-            let e = DcbFile::open(&p).and_then(|f| f.read_all().map(|_| ()));
+            let e = DcbFile::open(&p).and_then(|f| f.read_all(1).map(|_| ()));
             let e = e.expect_err(want).to_string();
             assert!(e.contains(want) && e.contains("bad.dcb"), "{e}");
         };

@@ -28,7 +28,7 @@ pub struct Format {
 impl Format {
     pub fn new(block_bytes: u32) -> Result<Format> {
         // 64 bytes is one sibling pair; the texture row width caps the top.
-        if !(64..=256 * 1024).contains(&block_bytes) || block_bytes % 64 != 0 {
+        if !(64..=256 * 1024).contains(&block_bytes) || !block_bytes.is_multiple_of(64) {
             return Err(Error::Invalid(format!(
                 "block size {block_bytes} bytes: must be a multiple of 64 from 64 to 262144"
             )));

@@ -62,7 +62,7 @@ pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
     let place_pair = |nodes: &mut Vec<Node>, (o, n): (usize, usize)| {
         let c = old[o].first_index as usize;
         let at = nodes.len();
-        debug_assert!(at % 2 == 0);
+        debug_assert!(at.is_multiple_of(2));
         nodes[n].index = at as u32;
         nodes.push(convert(c));
         nodes.push(convert(c + 1));

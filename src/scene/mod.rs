@@ -299,9 +299,9 @@ impl Default for Bounds {
 
 impl Bounds {
     pub fn grow(&mut self, p: [f32; 3]) {
-        for a in 0..3 {
-            self.min[a] = self.min[a].min(p[a]);
-            self.max[a] = self.max[a].max(p[a]);
+        for (a, v) in p.into_iter().enumerate() {
+            self.min[a] = self.min[a].min(v);
+            self.max[a] = self.max[a].max(v);
         }
     }
     pub fn union(&mut self, o: &Bounds) {

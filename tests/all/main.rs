@@ -2,6 +2,7 @@
 //! `Gpu::new` picks (lavapipe on machines without a GPU); nextest gives each a timeout.
 
 mod bad_input;
+mod cli;
 mod common;
 mod dc;
 mod gpu_vs_cpu;

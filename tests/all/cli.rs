@@ -1,0 +1,119 @@
+//! The command line end to end: prepare a block file, render it replicated and through the
+//! distributed cache (same PNG), write traces; damaged block files are refused.
+
+use crate::common::*;
+
+const SCENE: &str = "[camera]\nposition = [0, -2.2, 1.8]\nfocal_point = [0, 0, 0]\n\
+                     view_up = [0, 0, 1]\nview_angle = 40\n[image]\nwidth = 48\nheight = 40\n\
+                     [[mesh]]\ngenerator = \"rm\"\ntriangles = 8000\n";
+
+fn ok(args: &[&dyn AsRef<std::ffi::OsStr>]) -> String {
+    let r = dcrt(args);
+    let err = String::from_utf8_lossy(&r.stderr).to_string();
+    assert!(r.status.success(), "{err}");
+    err
+}
+
+#[test]
+fn prepared_model_renders_the_same_through_the_cache() {
+    let d = TempDir::new("cli-dc");
+    let scene = d.write("s.toml", SCENE);
+    let dcb = d.path("m.dcb");
+    ok(&[&"prepare", &scene, &"-o", &dcb]);
+    let direct = d.path("direct.png");
+    ok(&[&"render", &scene, &"-o", &direct]);
+    let rep = d.path("rep.png");
+    ok(&[&"render", &dcb, &"-o", &rep]);
+    let traces = d.path("traces");
+    let dc = d.path("dc.png");
+    let log = ok(&[
+        &"render",
+        &dcb,
+        &"-o",
+        &dc,
+        &"--virtual-ranks",
+        &"3",
+        &"--rank",
+        &"1",
+        &"--cache",
+        &"1line",
+        &"--trace",
+        &traces,
+    ]);
+    assert!(log.contains("rank 1 of 3"), "{log}");
+    let a = std::fs::read(&direct).unwrap();
+    assert_eq!(
+        a,
+        std::fs::read(&rep).unwrap(),
+        "the .dcb renders like its scene"
+    );
+    assert_eq!(
+        a,
+        std::fs::read(&dc).unwrap(),
+        "the DC renders like the replicated model"
+    );
+    // The trace: rounds, then one frame summary that adds up.
+    let text = std::fs::read_to_string(traces.join("frame_0000.rank1.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let frame = lines.last().unwrap();
+    assert_eq!(frame["type"], "frame");
+    let n = |v: &serde_json::Value, k: &str| v[k].as_u64().unwrap();
+    assert_eq!(n(frame, "hits") + n(frame, "misses"), n(frame, "lookups"));
+    let rounds: Vec<_> = lines.iter().filter(|l| l["type"] == "round").collect();
+    assert!(!rounds.is_empty());
+    let fetched: u64 = rounds.iter().map(|r| n(r, "fetched_blocks")).sum();
+    assert_eq!(fetched, n(frame, "fetched_blocks"));
+    assert_eq!(rounds.len() as u64, n(frame, "fault_rounds"));
+}
+
+#[test]
+fn damaged_block_files_name_block_and_owner() {
+    let d = TempDir::new("cli-dcb");
+    let scene = d.write("s.toml", SCENE);
+    let dcb = d.path("m.dcb");
+    ok(&[&"prepare", &scene, &"-o", &dcb]);
+    let good = std::fs::read(&dcb).unwrap();
+    let data = u64::from_le_bytes(good[32..40].try_into().unwrap()) as usize;
+    // Flip a byte in block 1: owned by rank 1 of 3, borrowed by rank 0.
+    let mut bad = good.clone();
+    bad[data + 8192 + 100] ^= 0x40;
+    let corrupt = d.write("corrupt.dcb", &bad);
+    let out = d.path("x.png");
+    for (rank, needle) in [
+        ("1", "block 1 (owner rank 1)"),
+        ("0", "block 1 (owner rank 1)"),
+    ] {
+        let r = dcrt(&[
+            &"render",
+            &corrupt,
+            &"-o",
+            &out,
+            &"--virtual-ranks",
+            &"3",
+            &"--rank",
+            &rank,
+        ]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(1), "{err}");
+        assert!(err.contains(needle) && err.contains("corrupt.dcb"), "{err}");
+        assert!(!out.exists());
+    }
+    let truncated = d.write("short.dcb", &good[..good.len() / 2]);
+    let magic = d.write("magic.dcb", [b"NOTDCRT\0".as_slice(), &good[8..]].concat());
+    let mut v = good.clone();
+    v[8] = 9;
+    let newer = d.write("newer.dcb", &v);
+    for (f, needle) in [
+        (truncated, "truncated"),
+        (magic, "bad magic"),
+        (newer, "newer"),
+    ] {
+        let r = dcrt(&[&"render", &f, &"-o", &out]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(1), "{err}");
+        assert!(err.contains(needle), "{err}");
+    }
+}
