@@ -52,15 +52,9 @@ impl Prepared {
         }
     }
 
+    /// A tracer for the replicated model.
     pub fn tracer<'g>(&self, gpu: &'g Gpu, settings: Settings) -> Result<Tracer<'g>> {
-        tracer(
-            gpu,
-            &self.blocks,
-            &self.meshes(),
-            self.bvh.depth,
-            settings,
-            None,
-        )
+        self.tracer_with(gpu, settings, None)
     }
 
     /// A tracer for one virtual rank of a distributed cache.
@@ -70,14 +64,17 @@ impl Prepared {
         settings: Settings,
         dc: &DcOptions,
     ) -> Result<Tracer<'g>> {
-        tracer(
-            gpu,
-            &self.blocks,
-            &self.meshes(),
-            self.bvh.depth,
-            settings,
-            Some(dc),
-        )
+        self.tracer_with(gpu, settings, Some(dc))
+    }
+
+    fn tracer_with<'g>(
+        &self,
+        gpu: &'g Gpu,
+        settings: Settings,
+        dc: Option<&DcOptions>,
+    ) -> Result<Tracer<'g>> {
+        let meshes = self.meshes();
+        tracer(gpu, &self.blocks, &meshes, self.bvh.depth, settings, dc)
     }
 
     /// The block file's metadata for this model seen with `camera` at `width` x `height`.
@@ -103,7 +100,7 @@ impl Prepared {
 /// of.
 pub enum Source {
     Built(Blocks),
-    File(DcbFile),
+    File(Box<DcbFile>),
 }
 
 /// What a render needs, from a scene (built now) or a block file (built before).
@@ -180,7 +177,7 @@ impl Loaded {
             height,
             background,
             build_seconds: None,
-            source: Source::File(f),
+            source: Source::File(Box::new(f)),
         })
     }
 

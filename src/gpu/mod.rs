@@ -156,7 +156,12 @@ impl Gpu {
 
     /// Maps a MAP_READ buffer whose copies were submitted, and returns its contents.
     pub fn map_read(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
-        let slice = staging.slice(..);
+        self.map_read_prefix(staging, staging.size())
+    }
+
+    /// Like `map_read`, for the first `bytes` bytes only.
+    pub fn map_read_prefix(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>> {
+        let slice = staging.slice(..bytes);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);

@@ -970,8 +970,9 @@ impl<'g> Tracer<'g> {
             }
             gpu.queue.submit([enc.finish()]);
             let data = gpu.map_read(&b.readback)?;
-            let counter: Counter = *bytemuck::from_bytes(&data[..16]);
-            let s: Stats = *bytemuck::from_bytes(&data[16..64]);
+            // Mapped bytes carry no alignment promise: read them unaligned.
+            let counter: Counter = bytemuck::pod_read_unaligned(&data[..16]);
+            let s: Stats = bytemuck::pod_read_unaligned(&data[16..64]);
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
@@ -1025,13 +1026,13 @@ impl<'g> Tracer<'g> {
         let Some(dc) = self.dc.as_mut() else {
             return Ok(());
         };
-        let header: FaultHeader = *bytemuck::from_bytes(&faults[..16]);
+        let header: FaultHeader = bytemuck::pod_read_unaligned(&faults[..16]);
         let n = header.count.min(dc.fault_cap) as usize;
         if n == 0 {
             return Ok(());
         }
-        let list: &[u32] = bytemuck::cast_slice(&faults[16..16 + 4 * n]);
-        let waiting: &[u32] = bytemuck::cast_slice(&waiters[..4 * dc.lines as usize]);
+        let list: Vec<u32> = bytemuck::pod_collect_to_vec(&faults[16..16 + 4 * n]);
+        let waiting: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[..4 * dc.lines as usize]);
         let mut claimed = vec![false; 0];
         claimed.resize(dc.lines.min(1 << 24) as usize, false);
         let mut rec = Round {
@@ -1043,7 +1044,7 @@ impl<'g> Tracer<'g> {
             ..Round::default()
         };
         let mut serve = Vec::new();
-        for &k in list {
+        for &k in &list {
             let line = cache_line(dc.map, dc.ranks, dc.lines, k);
             let first = !std::mem::replace(&mut claimed[line as usize], true);
             let old = dc.tags[line as usize];
@@ -1123,20 +1124,9 @@ impl<'g> Tracer<'g> {
         let bytes = u64::from(n) * 32;
         enc.copy_buffer_to_buffer(&b.pixels, 0, &b.pixel_readback, 0, bytes);
         gpu.queue.submit([enc.finish()]);
-        let slice = b.pixel_readback.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        rx.recv()
-            .map_err(|_| Error::Gpu("pixel map callback never ran".into()))?
-            .map_err(|e| Error::Gpu(format!("pixel map failed: {e}")))?;
+        let data = gpu.map_read_prefix(&b.pixel_readback, bytes)?;
         {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| Error::Gpu(format!("pixel map failed: {e}")))?;
-            let px: &[Pixel] = bytemuck::cast_slice(&view);
+            let px: Vec<Pixel> = bytemuck::pod_collect_to_vec(&data);
             let tiles_x = self.params.tiles_x;
             for (i, p) in px.iter().enumerate() {
                 let i = i as u32;
@@ -1149,7 +1139,6 @@ impl<'g> Tracer<'g> {
                 }
             }
         }
-        b.pixel_readback.unmap();
         Ok(())
     }
 
@@ -1180,7 +1169,7 @@ impl<'g> Tracer<'g> {
         let data = gpu.read_buffer(&out, 0, u64::from(words) * 4)?;
         gpu.queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
-        Ok(bytemuck::cast_slice(&data).to_vec())
+        Ok(bytemuck::pod_collect_to_vec(&data))
     }
 
     pub fn params(&self) -> Params {
@@ -1196,7 +1185,7 @@ impl<'g> Tracer<'g> {
         let data = self
             .gpu
             .read_buffer(&self.batch.rays, 0, u64::from(n) * 48)?;
-        Ok(bytemuck::cast_slice(&data).to_vec())
+        Ok(bytemuck::pod_collect_to_vec(&data))
     }
 }
 
