@@ -391,6 +391,21 @@ fn info(adapter: Option<&str>) -> Result<()> {
         l.max_storage_buffers_per_shader_stage
     );
     println!("features: {:?}", gpu.features);
+    // Cluster mode's MPI, when built in (the default `mpi` feature).
+    #[cfg(feature = "mpi")]
+    match mpi::environment::library_version() {
+        Ok(v) => println!(
+            "mpi: {}",
+            v.trim_end_matches(char::from(0))
+                .lines()
+                .next()
+                .unwrap_or("")
+                .trim()
+        ),
+        Err(e) => println!("mpi: version unreadable ({e})"),
+    }
+    #[cfg(not(feature = "mpi"))]
+    println!("mpi: not built in (build with the default `mpi` feature)");
     Ok(())
 }
 
