@@ -70,6 +70,9 @@ struct RayState {
     // block.
     prim: u32,
     nx: f32, ny: f32, nz: f32,
+    // The block this ray suspended on, or NONE: until it arrives the ray only renews its request.
+    wait_block: u32,
+    pad: u32,
 }
 
 // Mirrors gpu::layout::MeshInfo.
@@ -160,6 +163,12 @@ fn locate(k: u32) -> u32 {
         return row;
     }
     dc_misses += 1u;
+    request(k);
+    return NONE;
+}
+
+// Records a fault on block k, once per round however many rays ask.
+fn request(k: u32) {
     atomicAdd(&waiters[cache_line(k)], 1u);
     let bit = 1u << (k % 32u);
     if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
@@ -170,7 +179,6 @@ fn locate(k: u32) -> u32 {
             atomicAdd(&faults.dropped, 1u);
         }
     }
-    return NONE;
 }
 
 // (block id, slot in the block) of node i and of triangle t.

@@ -60,6 +60,7 @@ fn main() {
         put(r.node); put(r.sp); put(r.status); put(r.steps);
         put(r.cur_index); put(r.cur_count); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
+        put(r.wait_block); put(r.pad);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];

@@ -29,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
         var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u, 0u, NONE, NONE,
-                         0.0, 0.0, 0.0);
+                         0.0, 0.0, 0.0, NONE, 0u);
         if px >= params.width || py >= params.height || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else {

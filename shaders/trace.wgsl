@@ -45,9 +45,23 @@ var<workgroup> wg_entries: atomic<u32>;
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     var again = false;
     var ray_index = 0u;
+    var parked = false;
     if gid.x < counter_in[0] {
         ray_index = live_in[gid.x];
+        // A ray whose block has not arrived only renews its request: no state is read or
+        // written, which makes a round with many waiting rays cheap.
+        if DC {
+            let wb = rays[ray_index].wait_block;
+            if wb != NONE && block_rows[wb] == NONE {
+                request(wb);
+                parked = true;
+                again = true;
+            }
+        }
+    }
+    if gid.x < counter_in[0] && !parked {
         var r = rays[ray_index];
+        r.wait_block = NONE;
         let org = ray_origin(r);
         let dir = ray_dir(r);
         let inv = safe_inverse(dir);
@@ -91,6 +105,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let l = node_loc(r.node);
                 let row = locate(l.x);
                 if row == NONE {
+                    r.wait_block = l.x;
                     suspended = true;
                     break;
                 }
@@ -102,6 +117,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let l = node_loc(cur.index);
                 let row = locate(l.x);
                 if row == NONE {
+                    r.wait_block = l.x;
                     suspended = true;
                     break;
                 }
@@ -149,6 +165,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     let l = tri_loc(cur.index + k);
                     let row = locate(l.x);
                     if row == NONE {
+                        r.wait_block = l.x;
                         rest = cur.count - k;
                         break;
                     }

@@ -55,8 +55,11 @@ pub struct RayState {
     /// Primitive id and unit geometric normal of the closest hit.
     pub prim: u32,
     pub normal: [f32; 3],
+    /// The block the ray suspended on, or `NONE`.
+    pub wait_block: u32,
+    pub pad: u32,
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 72);
+const _: () = assert!(std::mem::size_of::<RayState>() == 80);
 
 /// `RayState.status` values.
 pub mod status {

@@ -1155,7 +1155,7 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 40 + 8 * params.pad0 + 10 * params.pad1 + 36 + 8 * params.mesh_count;
+        let words = 40 + 8 * params.pad0 + 10 * params.pad1 + 40 + 8 * params.mesh_count;
         let out = buffer(
             gpu,
             "probe out",
@@ -1184,7 +1184,7 @@ impl<'g> Tracer<'g> {
     pub fn read_rays(&self, n: u32) -> Result<Vec<RayState>> {
         let data = self
             .gpu
-            .read_buffer(&self.batch.rays, 0, u64::from(n) * 48)?;
+            .read_buffer(&self.batch.rays, 0, u64::from(n) * RAY_BYTES)?;
         Ok(bytemuck::pod_collect_to_vec(&data))
     }
 }

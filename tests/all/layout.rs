@@ -63,6 +63,8 @@ fn every_member_reads_back_through_the_shader() {
             cur_count: 14,
             prim: 15,
             normal: [16.5, 17.5, 18.5],
+            wait_block: 19,
+            pad: 20,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -77,6 +79,8 @@ fn every_member_reads_back_through_the_shader() {
             cur_count: u32::MAX,
             prim: 83,
             normal: [-0.5, 0.25, 1e-3],
+            wait_block: u32::MAX,
+            pad: 86,
         },
     ];
     let out = tracer.probe(params, &rays).unwrap();

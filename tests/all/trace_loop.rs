@@ -50,9 +50,14 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     }
     // The last batch's rays all finished (none left suspended or overflowed).
     let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
+    let bad = rays
+        .iter()
+        .position(|r| r.status != status::DONE && r.status != status::OUTSIDE);
+    assert_eq!(rays.len() as u32, tracer.params().batch_rays);
     assert!(
-        rays.iter()
-            .all(|r| r.status == status::DONE || r.status == status::OUTSIDE)
+        bad.is_none(),
+        "ray {bad:?} not finished: {:?}",
+        bad.map(|i| rays[i])
     );
     assert!(rays.iter().any(|r| r.steps > 5 * 4));
 }
