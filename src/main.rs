@@ -609,8 +609,10 @@ struct DcRow {
     nodes_per_block_entry: f64,
     resident_mib: f64,
     cache_mib: f64,
-    /// Of the warm frames' time: GPU rounds (trace + readback), CPU fetch, upload, shading.
-    trace_share: f64,
+    /// Of the warm frames' time: GPU trace rounds (timestamps), submission and readback waits,
+    /// CPU fetch, upload, shading.
+    gpu_share: f64,
+    sync_share: f64,
     fetch_share: f64,
     upload_share: f64,
     shade_share: f64,
@@ -734,7 +736,10 @@ fn bench_dc(
                 / sum(&|s| s.block_entries as f64).max(1.0),
             resident_mib: mib(resident),
             cache_mib: mib(cache),
-            trace_share: sum(&|s| s.trace_seconds - s.fetch_seconds - s.upload_seconds) / secs,
+            gpu_share: sum(&|s| s.gpu_seconds) / secs,
+            sync_share: sum(&|s| {
+                s.trace_seconds - s.gpu_seconds - s.fetch_seconds - s.upload_seconds
+            }) / secs,
             fetch_share: sum(&|s| s.fetch_seconds) / secs,
             upload_share: sum(&|s| s.upload_seconds) / secs,
             shade_share: sum(&|s| s.shade_seconds) / secs,
@@ -804,7 +809,7 @@ fn bench_dc(
         report.frames
     );
     println!(
-        "{:<10} {:<5} {:<8} {:>6} {:>9} {:>9} {:>10} {:>7} {:>7} {:>9} {:>6} {:>7} {:>8} {:>7} {:>6} {:>6} {:>6}",
+        "{:<10} {:<5} {:<8} {:>6} {:>9} {:>9} {:>10} {:>7} {:>7} {:>9} {:>6} {:>7} {:>8} {:>7} {:>6} {:>6} {:>6} {:>6}",
         "config",
         "cache",
         "map",
@@ -820,12 +825,13 @@ fn bench_dc(
         "res MiB",
         "$ MiB",
         "gpu%",
+        "sync%",
         "fetch%",
         "upl%"
     );
     for r in &report.rows {
         println!(
-            "{:<10} {:<5} {:<8} {:>6} {:>9.1} {:>9.1} {:>10.2} {:>7.1} {:>7.1} {:>9.0} {:>6.3} {:>7.2} {:>8.1} {:>7.1} {:>6.0} {:>6.1} {:>6.1}",
+            "{:<10} {:<5} {:<8} {:>6} {:>9.1} {:>9.1} {:>10.2} {:>7.1} {:>7.1} {:>9.0} {:>6.3} {:>7.2} {:>8.1} {:>7.1} {:>6.0} {:>6.0} {:>6.1} {:>6.1}",
             r.config,
             r.cache.as_deref().unwrap_or("-"),
             r.cache_map
@@ -842,7 +848,8 @@ fn bench_dc(
             r.nodes_per_block_entry,
             r.resident_mib,
             r.cache_mib,
-            r.trace_share * 100.0,
+            r.gpu_share * 100.0,
+            r.sync_share * 100.0,
             r.fetch_share * 100.0,
             r.upload_share * 100.0
         );

@@ -76,6 +76,9 @@ pub struct FrameStats {
     pub seconds: f64,
     pub trace_seconds: f64,
     pub shade_seconds: f64,
+    /// GPU time of the trace rounds by GPU timestamps (0 when the adapter has none); the rest of
+    /// `trace_seconds` is submission, readback and the CPU's fault service.
+    pub gpu_seconds: f64,
     /// Distributed cache: cache consultations, hits, misses; blocks fetched and their bytes;
     /// time fetching (CPU) and uploading into the cache.
     pub lookups: u64,
@@ -115,6 +118,8 @@ struct Batch {
     counters: [wgpu::Buffer; 2],
     stats: wgpu::Buffer,
     readback: wgpu::Buffer,
+    /// Two GPU timestamps around each submission's trace rounds, and their resolve buffer.
+    timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     fault_readback: wgpu::Buffer,
     waiter_readback: wgpu::Buffer,
     pixel_readback: wgpu::Buffer,
@@ -771,7 +776,7 @@ impl<'g> Tracer<'g> {
         ];
         let stats = buffer(gpu, "stats", 48, U::STORAGE | U::COPY_SRC | U::COPY_DST);
         let pixels = buffer(gpu, "pixels", n * 32, U::STORAGE | U::COPY_SRC);
-        let readback = buffer(gpu, "readback", 64, U::MAP_READ | U::COPY_DST);
+        let readback = buffer(gpu, "readback", 80, U::MAP_READ | U::COPY_DST);
         let fault_readback = buffer(
             gpu,
             "fault readback",
@@ -805,7 +810,20 @@ impl<'g> Tracer<'g> {
         // args_bg[i]: counter i was just produced, the other is cleared for the next round.
         let args_bg = [0, 1].map(|i| bind(gpu, &l.args, &[&counters[i], &counters[1 - i]]));
         let shade_bg = bind(gpu, &l.shade, &[&rays_buf, &pixels]);
+        let timestamps = gpu
+            .features
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+            .then(|| {
+                let q = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("round timestamps"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count: 2,
+                });
+                let resolve = buffer(gpu, "timestamps", 16, U::QUERY_RESOLVE | U::COPY_SRC);
+                (q, resolve)
+            });
         Ok(Batch {
+            timestamps,
             rays_cap,
             pixels,
             counters,
@@ -837,9 +855,32 @@ impl<'g> Tracer<'g> {
         bg: &wgpu::BindGroup,
         groups: Dispatch<'_>,
     ) {
+        self.dispatch_timed(enc, pipeline, bg, groups, (false, false));
+    }
+
+    /// `stamp`: write the GPU timestamp at the pass's (beginning, end), when the adapter has
+    /// timestamps: the rounds' GPU time is measured from the first trace pass to the last.
+    fn dispatch_timed(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        bg: &wgpu::BindGroup,
+        groups: Dispatch<'_>,
+        stamp: (bool, bool),
+    ) {
+        let timestamp_writes = self
+            .batch
+            .timestamps
+            .as_ref()
+            .filter(|_| stamp.0 || stamp.1)
+            .map(|(q, _)| wgpu::ComputePassTimestampWrites {
+                query_set: q,
+                beginning_of_pass_write_index: stamp.0.then_some(0),
+                end_of_pass_write_index: stamp.1.then_some(1),
+            });
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: None,
-            timestamp_writes: None,
+            timestamp_writes,
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &self.scene_bg, &[]);
@@ -950,13 +991,19 @@ impl<'g> Tracer<'g> {
         let mut live_rounds = 0u32;
         loop {
             let b = &self.batch;
-            for _ in 0..per_check {
+            for i in 0..per_check {
                 let o = 1 - cur;
                 let ind = Dispatch::Indirect(&b.counters[cur]);
-                self.dispatch(&mut enc, &self.kernels.trace, &b.trace_bg[cur], ind);
+                let (first, last) = (i == 0, i + 1 == per_check);
+                let k = &self.kernels;
+                self.dispatch_timed(&mut enc, &k.trace, &b.trace_bg[cur], ind, (first, false));
                 let one = Dispatch::Direct(1);
-                self.dispatch(&mut enc, &self.kernels.args, &b.args_bg[o], one);
+                self.dispatch_timed(&mut enc, &k.args, &b.args_bg[o], one, (false, last));
                 cur = o;
+            }
+            if let Some((q, resolve)) = &b.timestamps {
+                enc.resolve_query_set(q, 0..2, resolve, 0);
+                enc.copy_buffer_to_buffer(resolve, 0, &b.readback, 64, 16);
             }
             stats.rounds += per_check;
             live_rounds += per_check;
@@ -973,6 +1020,11 @@ impl<'g> Tracer<'g> {
             // Mapped bytes carry no alignment promise: read them unaligned.
             let counter: Counter = bytemuck::pod_read_unaligned(&data[..16]);
             let s: Stats = bytemuck::pod_read_unaligned(&data[16..64]);
+            if b.timestamps.is_some() {
+                let t: [u64; 2] = bytemuck::pod_read_unaligned(&data[64..80]);
+                let period = f64::from(gpu.queue.get_timestamp_period());
+                stats.gpu_seconds += t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
+            }
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
