@@ -126,6 +126,22 @@ mod tests {
     use super::*;
 
     #[test]
+    fn counts_are_near_the_target() {
+        for g in Generator::ALL {
+            for target in [10_000u64, 100_000, 1_000_000] {
+                let m = g.generate(target, 1);
+                m.validate(std::path::Path::new(g.name())).unwrap();
+                let r = m.triangle_count() as f64 / target as f64;
+                assert!(
+                    (0.75..=1.25).contains(&r),
+                    "{} at {target}: ratio {r}",
+                    g.name()
+                );
+            }
+        }
+    }
+
+    #[test]
     fn parse_and_name_round_trip() {
         for g in Generator::ALL {
             assert_eq!(Generator::parse(g.name()), Some(g));
