@@ -39,6 +39,11 @@ struct Params {
     dc_cache_row: u32,
     dc_root_row: u32,
     dc_fault_cap: u32,
+    // The rectangle of the image this render covers; tiles_x counts 8x8 tiles across it.
+    rect_x: u32,
+    rect_y: u32,
+    rect_w: u32,
+    rect_h: u32,
     pad0: u32,
     pad1: u32,
     pad2: u32,

@@ -37,6 +37,7 @@ fn main() {
     put(p.node_blocks);
     put(p.dc_ranks); put(p.dc_rank); put(p.dc_lines); put(p.dc_map);
     put(p.dc_cache_row); put(p.dc_root_row); put(p.dc_fault_cap);
+    put(p.rect_x); put(p.rect_y); put(p.rect_w); put(p.rect_h);
     put(p.pad0); put(p.pad1); put(p.pad2); put(p.pad3);
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);

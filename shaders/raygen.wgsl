@@ -22,15 +22,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if i < params.batch_rays {
         let tile = params.first_tile + i / (TILE * TILE);
         let local = i % (TILE * TILE);
-        let px = (tile % params.tiles_x) * TILE + local % TILE;
-        let py = (tile / params.tiles_x) * TILE + local / TILE;
+        let lx = (tile % params.tiles_x) * TILE + local % TILE;
+        let ly = (tile / params.tiles_x) * TILE + local / TILE;
+        let px = params.rect_x + lx;
+        let py = params.rect_y + ly;
         let sx = 2.0 * (f32(px) + 0.5) / f32(params.width) - 1.0;
         let sy = 1.0 - 2.0 * (f32(py) + 0.5) / f32(params.height);
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
         var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u, 0u, NONE, NONE,
                          0.0, 0.0, 0.0, NONE, 0u);
-        if px >= params.width || py >= params.height || !finite3(d) || !finite3(o) {
+        if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else {
             live = true;

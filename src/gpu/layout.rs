@@ -30,12 +30,18 @@ pub struct Params {
     pub dc_cache_row: u32,
     pub dc_root_row: u32,
     pub dc_fault_cap: u32,
+    /// The image rectangle this render covers (the whole image, or one tile of the cluster's
+    /// load balancer); `tiles_x` counts 8x8 tiles across it.
+    pub rect_x: u32,
+    pub rect_y: u32,
+    pub rect_w: u32,
+    pub rect_h: u32,
     pub pad0: u32,
     pub pad1: u32,
     pub pad2: u32,
     pub pad3: u32,
 }
-const _: () = assert!(std::mem::size_of::<Params>() == 160);
+const _: () = assert!(std::mem::size_of::<Params>() == 176);
 
 /// `RayState` in `shaders/common.wgsl`.
 #[repr(C)]

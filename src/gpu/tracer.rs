@@ -143,6 +143,31 @@ pub struct Tracer<'g> {
     rows_per_layer: u32,
     format: Format,
     dc: Option<Dc>,
+    frame_start: Instant,
+}
+
+/// A rectangle of the image in pixels: what one `render_rect` call traces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Rect {
+    pub x: u32,
+    pub y: u32,
+    pub w: u32,
+    pub h: u32,
+}
+
+impl Rect {
+    pub fn whole(width: u32, height: u32) -> Rect {
+        Rect {
+            x: 0,
+            y: 0,
+            w: width,
+            h: height,
+        }
+    }
+
+    pub fn pixels(&self) -> usize {
+        self.w as usize * self.h as usize
+    }
 }
 
 const NONE_TAG: u32 = u32::MAX;
@@ -735,6 +760,7 @@ impl<'g> Tracer<'g> {
             rows_per_layer,
             format,
             dc,
+            frame_start: Instant::now(),
         })
     }
 
@@ -891,16 +917,53 @@ impl<'g> Tracer<'g> {
         }
     }
 
-    /// Traces and shades one frame.
+    /// Traces and shades one whole frame.
     pub fn render(
         &mut self,
         basis: &CameraBasis,
         background: [f32; 3],
     ) -> Result<(Frame, FrameStats)> {
-        let start = Instant::now();
+        let (width, height) = (basis.width, basis.height);
+        let mut stats = self.begin_frame();
+        let rect = Rect::whole(width, height);
+        let pixels = self.render_rect(basis, background, rect, &mut stats)?;
+        self.end_frame(&mut stats);
+        let frame = Frame {
+            width,
+            height,
+            pixels,
+        };
+        Ok((frame, stats))
+    }
+
+    /// Starts a frame made of `render_rect` calls: clears the cache trace; the stats returned
+    /// start the frame's clock.
+    pub fn begin_frame(&mut self) -> FrameStats {
+        if let Some(dc) = self.dc.as_mut() {
+            let frame = dc.trace.summary.frame;
+            dc.trace = FrameTrace::default();
+            dc.trace.summary.frame = frame;
+        }
+        self.frame_start = Instant::now();
+        FrameStats::default()
+    }
+
+    /// Traces and shades the pixels of `rect` (row-major within it), adding to `stats`.
+    pub fn render_rect(
+        &mut self,
+        basis: &CameraBasis,
+        background: [f32; 3],
+        rect: Rect,
+        stats: &mut FrameStats,
+    ) -> Result<Vec<Pixel>> {
         let (w, h) = (basis.width, basis.height);
-        let tiles_x = w.div_ceil(TILE);
-        let tiles = tiles_x * h.div_ceil(TILE);
+        if rect.w == 0 || rect.h == 0 || rect.x + rect.w > w || rect.y + rect.h > h {
+            return Err(Error::Invalid(format!(
+                "tile {rect:?} is empty or outside the {w}x{h} image"
+            )));
+        }
+        let tiles_x = rect.w.div_ceil(TILE);
+        let tiles = tiles_x * rect.h.div_ceil(TILE);
         let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
         self.params.origin = v4(basis.origin, 1.0);
         self.params.forward = v4(basis.forward, 0.0);
@@ -910,17 +973,9 @@ impl<'g> Tracer<'g> {
         self.params.width = w;
         self.params.height = h;
         self.params.tiles_x = tiles_x;
-        let mut frame = Frame {
-            width: w,
-            height: h,
-            pixels: vec![Pixel::default(); (w as usize) * (h as usize)],
-        };
-        let mut stats = FrameStats::default();
-        if let Some(dc) = self.dc.as_mut() {
-            let frame = dc.trace.summary.frame;
-            dc.trace = FrameTrace::default();
-            dc.trace.summary.frame = frame;
-        }
+        (self.params.rect_x, self.params.rect_y) = (rect.x, rect.y);
+        (self.params.rect_w, self.params.rect_h) = (rect.w, rect.h);
+        let mut pixels = vec![Pixel::default(); rect.pixels()];
         let tiles_per_batch = self.batch.rays_cap / TILE_RAYS;
         let mut first = 0;
         while first < tiles {
@@ -928,16 +983,21 @@ impl<'g> Tracer<'g> {
             self.params.first_tile = first;
             self.params.batch_rays = n_tiles * TILE_RAYS;
             let t = Instant::now();
-            self.trace_batch(&mut stats)?;
+            self.trace_batch(stats)?;
             let t2 = Instant::now();
             stats.trace_seconds += (t2 - t).as_secs_f64();
-            self.read_pixels(first, n_tiles, &mut frame)?;
+            self.read_pixels(first, n_tiles, rect, &mut pixels)?;
             stats.shade_seconds += t2.elapsed().as_secs_f64();
             stats.batches += 1;
             first += n_tiles;
         }
-        stats.rays = u64::from(w) * u64::from(h);
-        stats.seconds = start.elapsed().as_secs_f64();
+        stats.rays += rect.pixels() as u64;
+        Ok(pixels)
+    }
+
+    /// Ends a frame begun with `begin_frame`: its wall time and the cache trace's summary.
+    pub fn end_frame(&mut self, stats: &mut FrameStats) {
+        stats.seconds = self.frame_start.elapsed().as_secs_f64();
         if let Some(dc) = self.dc.as_mut() {
             let s = &mut dc.trace.summary;
             s.rank = dc.ranks.rank;
@@ -962,7 +1022,6 @@ impl<'g> Tracer<'g> {
             s.upload_ms = stats.upload_seconds * 1e3;
             s.shade_ms = stats.shade_seconds * 1e3;
         }
-        Ok((frame, stats))
     }
 
     /// Generates the batch's rays and runs trace rounds until none is live.
@@ -1162,7 +1221,13 @@ impl<'g> Tracer<'g> {
         self.dc.as_ref().map(|d| (d.ranks, d.lines, d.map))
     }
 
-    fn read_pixels(&self, first_tile: u32, n_tiles: u32, frame: &mut Frame) -> Result<()> {
+    fn read_pixels(
+        &self,
+        first_tile: u32,
+        n_tiles: u32,
+        rect: Rect,
+        out: &mut [Pixel],
+    ) -> Result<()> {
         let gpu = self.gpu;
         let b = &self.batch;
         let n = n_tiles * TILE_RAYS;
@@ -1186,8 +1251,8 @@ impl<'g> Tracer<'g> {
                 let local = i % TILE_RAYS;
                 let x = (tile % tiles_x) * TILE + local % TILE;
                 let y = (tile / tiles_x) * TILE + local / TILE;
-                if x < frame.width && y < frame.height {
-                    frame.pixels[(y * frame.width + x) as usize] = *p;
+                if x < rect.w && y < rect.h {
+                    out[(y * rect.w + x) as usize] = *p;
                 }
             }
         }
@@ -1207,7 +1272,7 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 40 + 8 * params.pad0 + 10 * params.pad1 + 40 + 8 * params.mesh_count;
+        let words = 44 + 8 * params.pad0 + 10 * params.pad1 + 40 + 8 * params.mesh_count;
         let out = buffer(
             gpu,
             "probe out",

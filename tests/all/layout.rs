@@ -45,6 +45,10 @@ fn every_member_reads_back_through_the_shader() {
         batch_rays: 105,
         step_budget: 106,
         stack_size: 107,
+        rect_x: 108,
+        rect_y: 109,
+        rect_w: 110,
+        rect_h: 111,
         pad0: nodes,
         pad1: tris,
         ..base

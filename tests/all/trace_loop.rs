@@ -156,3 +156,57 @@ fn buffer_and_texture_stores_give_the_same_image() {
         assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q));
     }
 }
+
+/// Any cut of the image into rectangles (odd sizes, not multiples of the 8x8 tile, some smaller
+/// than one tile) gives the same pixels as one whole-image render: what the cluster relies on.
+#[test]
+fn rectangles_tile_the_image_exactly() {
+    use dcrt::gpu::tracer::Rect;
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let (w, h) = (61, 45);
+    let (whole, _) = render(&gpu, &prepared, &camera, w, h, Settings::default());
+    let mut tracer = prepared.tracer(&gpu, Settings::default()).unwrap();
+    let basis = camera.basis(w, h);
+    let mut stats = tracer.begin_frame();
+    let mut pieced = vec![None; (w * h) as usize];
+    let (xs, ys) = ([0, 5, 13, 40, 61], [0, 1, 9, 30, 45]);
+    for yi in 0..4 {
+        for xi in 0..4 {
+            let rect = Rect {
+                x: xs[xi],
+                y: ys[yi],
+                w: xs[xi + 1] - xs[xi],
+                h: ys[yi + 1] - ys[yi],
+            };
+            let px = tracer
+                .render_rect(&basis, [0.1, 0.2, 0.3], rect, &mut stats)
+                .unwrap();
+            assert_eq!(px.len(), rect.pixels());
+            for (i, p) in px.into_iter().enumerate() {
+                let (x, y) = (rect.x + i as u32 % rect.w, rect.y + i as u32 / rect.w);
+                let slot = &mut pieced[(y * w + x) as usize];
+                assert!(slot.is_none(), "pixel ({x}, {y}) rendered twice");
+                *slot = Some(p);
+            }
+        }
+    }
+    tracer.end_frame(&mut stats);
+    assert_eq!(stats.rays, u64::from(w * h));
+    for (i, (p, q)) in whole.pixels.iter().zip(&pieced).enumerate() {
+        let q = q.unwrap_or_else(|| panic!("pixel {i} never rendered"));
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(&q), "pixel {i}");
+    }
+    let outside = Rect {
+        x: 60,
+        y: 0,
+        w: 2,
+        h: 1,
+    };
+    assert!(
+        tracer
+            .render_rect(&basis, [0.0; 3], outside, &mut stats)
+            .is_err()
+    );
+}
