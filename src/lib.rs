@@ -8,6 +8,7 @@
 
 pub mod blocks;
 pub mod bvh;
+pub mod cluster;
 pub mod dc;
 pub mod error;
 pub mod gpu;

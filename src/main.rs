@@ -102,6 +102,28 @@ struct RenderArgs {
     gpu: GpuArgs,
     #[command(flatten)]
     dc: DcArgs,
+    #[command(flatten)]
+    cluster: ClusterArgs,
+}
+
+/// Options of cluster mode (under mpirun or srun with 2 ranks or more).
+#[derive(Args, Clone)]
+struct ClusterArgs {
+    /// Threads the display copies received pixels into the frame with.
+    #[arg(long, default_value_t = 2)]
+    copy_threads: u32,
+    /// Side in pixels of the balancer's large tiles.
+    #[arg(long, default_value_t = 128)]
+    tile: u32,
+    /// Side of the smallest tiles the balancer splits them into toward the end of a frame.
+    #[arg(long, default_value_t = 16)]
+    min_tile: u32,
+    /// Target size in bytes of a pixel message to the display.
+    #[arg(long, default_value_t = 32 * 1024)]
+    message_bytes: usize,
+    /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
+    #[arg(long, default_value_t = 300)]
+    timeout: u64,
 }
 
 #[derive(Args, Clone)]
@@ -112,9 +134,10 @@ struct DcArgs {
     /// The rank this process renders as (with --virtual-ranks).
     #[arg(long, default_value_t = 0)]
     rank: u32,
-    /// Cache size: a fraction of the model (1/8), lines (64lines) or bytes (256MiB).
-    #[arg(long, default_value = "1/8")]
-    cache: String,
+    /// Cache size: a fraction of the model (1/8), lines (64lines) or bytes (256MiB). Default 1/8
+    /// with --virtual-ranks; under mpirun, giving it turns the distributed cache on.
+    #[arg(long)]
+    cache: Option<String>,
     #[arg(long, value_enum, default_value_t = CacheMap::Ize)]
     cache_map: CacheMap,
     /// Everything resident, no cache (the default without --virtual-ranks).
@@ -131,7 +154,7 @@ impl DcArgs {
         Ok(Some(DcOptions {
             ranks: n,
             rank: self.rank,
-            cache: CacheSize::parse(&self.cache)?,
+            cache: CacheSize::parse(self.cache.as_deref().unwrap_or("1/8"))?,
             map: self.cache_map,
         }))
     }
@@ -219,8 +242,11 @@ fn render(a: RenderArgs) -> Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
     }
-    let dc = a.dc.options()?;
     let format = Format::new(a.gpu.block_size)?;
+    if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
+        return render_cluster(&a, format, k);
+    }
+    let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let width = a.width.unwrap_or(loaded.width);
     let height = a.height.unwrap_or(loaded.height);
@@ -254,14 +280,7 @@ fn render(a: RenderArgs) -> Result<()> {
             .camera
             .orbit(std::f64::consts::TAU * f64::from(i) / f64::from(a.frames));
         let (frame, stats) = render_frame(&mut tracer, &camera, width, height, loaded.background)?;
-        let numbered = |p: &Path| -> PathBuf {
-            if a.frames == 1 {
-                return p.to_path_buf();
-            }
-            let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("out");
-            let ext = p.extension().and_then(|s| s.to_str()).unwrap_or("png");
-            p.with_file_name(format!("{stem}_{i:04}.{ext}"))
-        };
+        let numbered = |p: &Path| output::numbered(p, i, a.frames);
         let png = numbered(&a.output);
         output::write_png(&png, &frame)?;
         if let Some(exr) = &a.exr {
@@ -276,6 +295,7 @@ fn render(a: RenderArgs) -> Result<()> {
                 trace.summary.shade_ms = stats.shade_seconds * 1e3;
                 trace.summary.rounds = stats.rounds;
                 trace.summary.ranks = 1;
+                trace.summary.role = "single".into();
                 trace.summary.hit_rate = 1.0;
             }
             trace.write(dir)?;
@@ -309,6 +329,47 @@ fn render(a: RenderArgs) -> Result<()> {
             png.display()
         );
     }
+    Ok(())
+}
+
+/// `render` under an MPI launcher with `k` > 1 ranks: this process's role of the cluster.
+fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
+    if a.dc.virtual_ranks.is_some() {
+        bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
+    }
+    let c = &a.cluster;
+    if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
+        bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
+    }
+    if c.timeout == 0 {
+        bail!("--timeout must be at least 1 second");
+    }
+    let cache = match &a.dc.cache {
+        Some(s) => Some((CacheSize::parse(s)?, a.dc.cache_map)),
+        None => None,
+    };
+    let opts = dcrt::cluster::Options {
+        input: a.scene.clone(),
+        output: a.output.clone(),
+        exr: a.exr.clone(),
+        aovs: a.aov.clone(),
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+        trace: a.trace.clone(),
+        adapter: a.gpu.adapter.clone(),
+        settings: settings(&a.gpu),
+        preset: a.gpu.bvh_preset,
+        format,
+        cache,
+        copy_threads: c.copy_threads,
+        tile: c.tile,
+        min_tile: c.min_tile,
+        message_bytes: c.message_bytes,
+        timeout: std::time::Duration::from_secs(c.timeout),
+        resend: false,
+    };
+    dcrt::cluster::run(&opts)?;
     Ok(())
 }
 

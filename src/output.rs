@@ -17,6 +17,17 @@ pub enum Aov {
     Normal,
 }
 
+/// The output path of frame `i` of `frames`: `path` itself for a single frame, else numbered
+/// (`out.png` → `out_0000.png`, ...).
+pub fn numbered(path: &Path, i: u32, frames: u32) -> std::path::PathBuf {
+    if frames == 1 {
+        return path.to_path_buf();
+    }
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("out");
+    let ext = path.extension().and_then(|s| s.to_str()).unwrap_or("png");
+    path.with_file_name(format!("{stem}_{i:04}.{ext}"))
+}
+
 /// Linear to sRGB transfer, then 8 bits.
 pub fn srgb8(linear: f32) -> u8 {
     let c = if linear.is_nan() {
@@ -41,8 +52,12 @@ pub fn to_rgb8(frame: &Frame) -> image::RgbImage {
 }
 
 pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
-    to_rgb8(frame)
-        .save_with_format(path, image::ImageFormat::Png)
+    save_png(path, &to_rgb8(frame))
+}
+
+/// Writes an 8-bit sRGB image.
+pub fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
+    img.save_with_format(path, image::ImageFormat::Png)
         .map_err(|e| match e {
             image::ImageError::IoError(io) => DcrtError::io(path, io),
             other => DcrtError::format(path, None, other.to_string()),

@@ -236,6 +236,76 @@ impl Loaded {
     }
 }
 
+impl Loaded {
+    /// The blocks rank `ranks.rank` keeps on its GPU without a cache, in row order: its own
+    /// blocks by slot, then the replicated root block unless it owns it. From a block file only
+    /// these blocks are read.
+    pub fn resident(&self, ranks: Ranks) -> Result<Vec<u32>> {
+        match &self.source {
+            Source::File(f) => f.read_resident(ranks),
+            Source::Built(b) => {
+                let mut rows = Vec::new();
+                for k in (ranks.rank..b.count()).step_by(ranks.n as usize) {
+                    rows.extend_from_slice(b.block(k));
+                }
+                if !ranks.owns(0) {
+                    rows.extend_from_slice(b.block(0));
+                }
+                Ok(rows)
+            }
+        }
+    }
+
+    /// A tracer for one rank of a distributed cache whose borrowed blocks come from `setup`'s
+    /// source; `resident` is what `resident` returned for the same ranks.
+    pub fn dc_tracer<'g>(
+        &self,
+        gpu: &'g Gpu,
+        settings: Settings,
+        resident: &[u32],
+        setup: DcSetup,
+    ) -> Result<Tracer<'g>> {
+        let (node_blocks, tri_blocks) = match &self.source {
+            Source::Built(b) => (b.node_blocks, b.tri_blocks),
+            Source::File(f) => (f.node_blocks, f.tri_blocks),
+        };
+        let model = GpuModel {
+            format: self.format(),
+            node_blocks,
+            tri_blocks,
+            resident,
+            meshes: &self.meshes,
+            depth: self.depth,
+        };
+        Tracer::new(gpu, &model, settings, Some(setup))
+    }
+
+    /// Identifies the model: the same on every rank that has the same blocks, whether built
+    /// from a scene or read from a block file.
+    pub fn fingerprint(&self) -> u64 {
+        let crc = match &self.source {
+            Source::Built(b) => b.fingerprint(),
+            Source::File(f) => f.fingerprint(),
+        };
+        (u64::from(crc) << 32) | u64::from(self.block_count())
+    }
+
+    /// The image a path renders (size and background) without building or reading the model:
+    /// what the display and the balancer need.
+    pub fn image_of(path: &Path) -> Result<(u32, u32, [f32; 3])> {
+        let from = |l: Loaded| (l.width, l.height, l.background);
+        if path.extension().is_some_and(|e| e == "dcb") {
+            return Loaded::from_dcb(path, None).map(from);
+        }
+        let scene = Scene::load(path)?;
+        if let Some(model) = &scene.model {
+            let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
+            return Loaded::from_dcb(&dcb, Some(&scene)).map(from);
+        }
+        Ok((scene.width, scene.height, scene.background))
+    }
+}
+
 /// How one process runs the distributed cache: `ranks` virtual ranks in one process, rendering
 /// as `rank`, with a cache of `cache` and the `map` mapping.
 #[derive(Clone, Copy, Debug)]

@@ -168,6 +168,15 @@ impl DcbFile {
         self.node_blocks + self.tri_blocks
     }
 
+    /// CRC-32 of the checksum table (see `Blocks::fingerprint`).
+    pub fn fingerprint(&self) -> u32 {
+        let mut h = crc32fast::Hasher::new();
+        for c in &self.checksums {
+            h.update(&c.to_le_bytes());
+        }
+        h.finalize()
+    }
+
     /// Reads block `k` into `out` and checks it; `owner` names the rank it belongs to in errors.
     pub fn read_block_into(&self, k: u32, owner: u32, out: &mut [u32]) -> Result<()> {
         let bytes = u64::from(self.format.block_bytes);

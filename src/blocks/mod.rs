@@ -111,6 +111,16 @@ impl Blocks {
         self.node_blocks + self.tri_blocks
     }
 
+    /// CRC-32 of the per-block CRC-32 table: equal to the block file's `fingerprint` when
+    /// the file holds these blocks.
+    pub fn fingerprint(&self) -> u32 {
+        let mut h = crc32fast::Hasher::new();
+        for k in 0..self.count() {
+            h.update(&crc32fast::hash(bytemuck::cast_slice(self.block(k))).to_le_bytes());
+        }
+        h.finalize()
+    }
+
     pub fn block(&self, k: u32) -> &[u32] {
         let bw = self.format.words() as usize;
         &self.words[k as usize * bw..(k as usize + 1) * bw]

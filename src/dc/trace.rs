@@ -41,6 +41,9 @@ pub struct Round {
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Summary {
     pub frame: u32,
+    /// `render` (or `single` for a one-process render), `display`, `balancer`, or both joined
+    /// by `+` when one rank plays two roles.
+    pub role: String,
     pub rank: u32,
     pub ranks: u32,
     pub cache_lines: u32,
@@ -63,6 +66,9 @@ pub struct Summary {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FrameTrace {
     pub rounds: Vec<Round>,
+    /// Cluster events of the frame (tiles rendered, grants, messages), each an object with a
+    /// `"type"`.
+    pub events: Vec<serde_json::Value>,
     pub summary: Summary,
 }
 
@@ -78,8 +84,8 @@ impl FrameTrace {
         dir.join(format!("frame_{frame:04}.rank{rank}.jsonl"))
     }
 
-    /// Writes one JSON object per line: every round (`"type": "round"`), then the frame
-    /// (`"type": "frame"`).
+    /// Writes one JSON object per line: every round (`"type": "round"`), the cluster events,
+    /// then the frame (`"type": "frame"`).
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
         let io = |e| Error::io(&path, e);
@@ -87,6 +93,10 @@ impl FrameTrace {
         for r in &self.rounds {
             serde_json::to_writer(&mut w, &Record::Round(r))
                 .map_err(|e| Error::Invalid(e.to_string()))?;
+            w.write_all(b"\n").map_err(io)?;
+        }
+        for e in &self.events {
+            serde_json::to_writer(&mut w, e).map_err(|e| Error::Invalid(e.to_string()))?;
             w.write_all(b"\n").map_err(io)?;
         }
         serde_json::to_writer(&mut w, &Record::Frame(&self.summary))

@@ -7,6 +7,7 @@ pub mod tracer;
 
 use crate::error::{Error, Result};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 /// A device and queue on the chosen adapter.
 pub struct Gpu {
@@ -17,7 +18,19 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     /// The first error wgpu reported outside an error scope; checked after every wait.
     errors: Arc<Mutex<Option<String>>>,
+    /// Called every few milliseconds while waiting on the GPU (cluster ranks poll MPI there),
+    /// with the longest wait allowed before the GPU is taken for hung.
+    idle: Mutex<Option<Idle>>,
 }
+
+/// What to do while waiting on the GPU, and for how long at most.
+pub struct Idle {
+    pub hook: Box<dyn FnMut() + Send>,
+    pub limit: Duration,
+}
+
+/// How long each GPU wait sleeps between idle calls.
+const IDLE_SLICE: Duration = Duration::from_millis(1);
 
 fn instance() -> wgpu::Instance {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
@@ -116,15 +129,48 @@ impl Gpu {
             device,
             queue,
             errors,
+            idle: Mutex::new(None),
         })
     }
 
     /// Waits for all submitted work; returns the first device error seen, if any.
     pub fn wait(&self) -> Result<()> {
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("device poll: {e}")))?;
+        let mut idle = self.idle.lock().unwrap_or_else(|p| p.into_inner());
+        let poll_error = |e| Error::Gpu(format!("device poll: {e}"));
+        match idle.as_mut() {
+            None => {
+                self.device
+                    .poll(wgpu::PollType::wait_indefinitely())
+                    .map_err(poll_error)?;
+            }
+            Some(idle) => {
+                let start = Instant::now();
+                let slice = wgpu::PollType::Wait {
+                    submission_index: None,
+                    timeout: Some(IDLE_SLICE),
+                };
+                loop {
+                    match self.device.poll(slice.clone()) {
+                        Ok(_) => break,
+                        Err(wgpu::PollError::Timeout) => (idle.hook)(),
+                        Err(e) => return Err(poll_error(e)),
+                    }
+                    if start.elapsed() > idle.limit {
+                        return Err(Error::Gpu(format!(
+                            "the GPU did not finish its work within {:.0} s",
+                            idle.limit.as_secs_f64()
+                        )));
+                    }
+                }
+            }
+        }
+        drop(idle);
         self.check()
+    }
+
+    /// Installs (or with `None` removes) what runs while this process waits on the GPU.
+    pub fn set_idle(&self, idle: Option<Idle>) {
+        *self.idle.lock().unwrap_or_else(|p| p.into_inner()) = idle;
     }
 
     pub fn check(&self) -> Result<()> {

@@ -1001,6 +1001,7 @@ impl<'g> Tracer<'g> {
         if let Some(dc) = self.dc.as_mut() {
             let s = &mut dc.trace.summary;
             s.rank = dc.ranks.rank;
+            s.role = "render".into();
             s.ranks = dc.ranks.n;
             s.cache_lines = dc.lines;
             s.cache_map = format!("{:?}", dc.map).to_lowercase();

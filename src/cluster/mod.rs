@@ -1,0 +1,151 @@
+//! Cluster mode (DESIGN.md section 4, chapter 5): `mpirun -n K dcrt render ...`. Rank 0 is the
+//! display, rank 1 the load balancer, the others render (with 2 ranks the display also
+//! balances; with 1 rank there is no MPI at all). Render ranks trace the tiles the balancer
+//! hands them and send the pixels to the display; with a distributed cache each holds only its
+//! own blocks and reads borrowed ones from their owners with one-sided MPI.
+
+pub mod balance;
+pub mod pixels;
+
+#[cfg(feature = "mpi")]
+mod node;
+#[cfg(feature = "mpi")]
+mod rma;
+
+use crate::blocks::Format;
+use crate::bvh::Preset;
+use crate::dc::{CacheMap, CacheSize};
+use crate::error::{Error, Result};
+use crate::gpu::tracer::Settings;
+use crate::output::Aov;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// How many ranks the launcher started, from the variables mpirun and srun set; `None` when this
+/// process was started on its own.
+pub fn launched_ranks() -> Option<u32> {
+    [
+        "OMPI_COMM_WORLD_SIZE",
+        "PMI_SIZE",
+        "PMIX_SIZE",
+        "MV2_COMM_WORLD_SIZE",
+        "SLURM_STEP_NUM_TASKS",
+    ]
+    .iter()
+    .find_map(|v| std::env::var(v).ok()?.trim().parse().ok())
+}
+
+/// Which rank does what.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Roles {
+    pub size: u32,
+}
+
+impl Roles {
+    pub fn new(size: u32) -> Result<Roles> {
+        if size < 2 {
+            return Err(Error::Invalid(format!(
+                "cluster mode needs at least 2 ranks, got {size}"
+            )));
+        }
+        Ok(Roles { size })
+    }
+    pub const DISPLAY: u32 = 0;
+    pub fn balancer(&self) -> u32 {
+        if self.size == 2 { 0 } else { 1 }
+    }
+    pub fn first_render(&self) -> u32 {
+        if self.size == 2 { 1 } else { 2 }
+    }
+    pub fn render_ranks(&self) -> u32 {
+        self.size - self.first_render()
+    }
+    /// The render index (0..render_ranks) of a world rank, if it renders.
+    pub fn render_index(&self, rank: u32) -> Option<u32> {
+        (rank >= self.first_render() && rank < self.size).then(|| rank - self.first_render())
+    }
+    pub fn render_rank(&self, index: u32) -> u32 {
+        self.first_render() + index
+    }
+    pub fn name(&self, rank: u32) -> &'static str {
+        match (rank == Self::DISPLAY, rank == self.balancer()) {
+            (true, true) => "display+balancer",
+            (true, false) => "display",
+            (false, true) => "balancer",
+            _ => "render",
+        }
+    }
+}
+
+/// Everything a cluster render needs, as the command line gave it.
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    pub exr: Option<PathBuf>,
+    pub aovs: Vec<Aov>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub frames: u32,
+    pub trace: Option<PathBuf>,
+    pub adapter: Option<String>,
+    pub settings: Settings,
+    pub preset: Preset,
+    pub format: Format,
+    /// The distributed cache's size and mapping; `None` replicates the model on every rank.
+    pub cache: Option<(CacheSize, CacheMap)>,
+    /// Threads the display copies pixels with.
+    pub copy_threads: u32,
+    /// Side of the balancer's large tiles, and of the smallest it splits them into.
+    pub tile: u32,
+    pub min_tile: u32,
+    /// Target size of a pixel message.
+    pub message_bytes: usize,
+    /// How long any wait (for a message, for the GPU) may last before the job is aborted.
+    pub timeout: Duration,
+    /// Benchmark of the display (chapter 5.5): every frame after the first resends the first
+    /// frame's tiles instead of tracing them again, so the display and the network set the
+    /// frame rate. Also measures MPI bandwidth to the display.
+    pub resend: bool,
+}
+
+/// Runs this process's role of a cluster render. Returns only on rank 0's success or a clean
+/// failure agreed by all ranks; errors in the middle of a frame abort the whole job.
+pub fn run(opts: &Options) -> Result<()> {
+    #[cfg(feature = "mpi")]
+    {
+        node::run(opts)
+    }
+    #[cfg(not(feature = "mpi"))]
+    {
+        let _ = opts;
+        Err(Error::Invalid(
+            "started by an MPI launcher, but this dcrt was built without the `mpi` feature".into(),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn roles_for_every_size() {
+        let two = Roles::new(2).unwrap();
+        assert_eq!((two.balancer(), two.render_ranks()), (0, 1));
+        assert_eq!(two.name(0), "display+balancer");
+        assert_eq!(two.render_index(1), Some(0));
+        for k in 3..9 {
+            let r = Roles::new(k).unwrap();
+            assert_eq!(r.balancer(), 1);
+            assert_eq!(r.render_ranks(), k - 2);
+            assert_eq!(r.render_index(0), None);
+            assert_eq!(r.render_index(1), None);
+            for i in 0..r.render_ranks() {
+                assert_eq!(r.render_index(r.render_rank(i)), Some(i));
+            }
+            assert_eq!(r.render_index(k), None);
+        }
+        assert!(Roles::new(1).is_err());
+    }
+}

@@ -1,0 +1,138 @@
+//! One-sided MPI over `mpi::ffi`: the only unsafe code in dcrt. rsmpi 0.8 has no safe RMA API, so
+//! this module wraps the few window calls the distributed cache needs (chapter 5.3: a render rank
+//! reads a borrowed block straight out of its owner's memory with a passive `MPI_Get`) and MPI
+//! progress polling for ranks that wait on their GPU.
+#![allow(unsafe_code)]
+
+use crate::error::{Error, Result};
+use mpi::ffi;
+use mpi::raw::AsRaw;
+use mpi::topology::SimpleCommunicator;
+use std::os::raw::c_int;
+
+fn check(what: &str, code: c_int) -> Result<()> {
+    if code == ffi::MPI_SUCCESS as c_int {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "{what} failed with MPI error {code}"
+        )))
+    }
+}
+
+/// A window over the blocks this rank owns, in slot order: `words` u32 per block.
+pub struct Window {
+    win: ffi::MPI_Win,
+    /// The exposed memory. MPI reads it while the window lives, so it is never touched again
+    /// and freed only after `MPI_Win_free`.
+    memory: Vec<u32>,
+}
+
+impl Window {
+    /// Collective over `comm`: every member exposes its `memory` (possibly empty) for reading.
+    pub fn create(comm: &SimpleCommunicator, mut memory: Vec<u32>) -> Result<Window> {
+        let bytes = (memory.len() * 4) as ffi::MPI_Aint;
+        // An empty Vec's pointer is dangling but never dereferenced: MPI sees a zero size.
+        let base = memory.as_mut_ptr().cast();
+        let mut win: ffi::MPI_Win = unsafe { ffi::RSMPI_WIN_NULL };
+        // SAFETY: `base` is valid for `bytes` bytes and stays so (and unmoved: the Vec's buffer
+        // does not move when the Vec does) until `MPI_Win_free` in `drop`; `win` is written.
+        check("MPI_Win_create", unsafe {
+            ffi::MPI_Win_create(
+                base,
+                bytes,
+                4,
+                ffi::RSMPI_INFO_NULL,
+                comm.as_raw(),
+                &mut win,
+            )
+        })?;
+        Ok(Window { win, memory })
+    }
+
+    /// Bytes this rank exposes.
+    pub fn exposed_bytes(&self) -> u64 {
+        self.memory.len() as u64 * 4
+    }
+
+    /// Reads each `(target rank, word offset)` piece of `words` u32 into the matching piece of
+    /// `out`, all in one passive-target epoch: lock_all, every Get, unlock_all (which completes
+    /// them). `out.len()` must be `gets.len() * words`.
+    pub fn get_all(&self, gets: &[(u32, u64)], words: usize, out: &mut [u32]) -> Result<()> {
+        if out.len() != gets.len() * words {
+            return Err(Error::Invalid(format!(
+                "{} words of room for {} blocks of {words}",
+                out.len(),
+                gets.len()
+            )));
+        }
+        let count = c_int::try_from(words)
+            .map_err(|_| Error::Invalid(format!("{words} words in one Get")))?;
+        // SAFETY: the window is live; `u32` matches MPI_UINT32_T; each destination piece is
+        // `words` u32 inside `out`, which outlives the epoch closed by unlock_all below.
+        unsafe {
+            check(
+                "MPI_Win_lock_all",
+                ffi::MPI_Win_lock_all(ffi::MPI_MODE_NOCHECK as c_int, self.win),
+            )?;
+            let mut result = Ok(());
+            for (&(rank, disp), dst) in gets.iter().zip(out.chunks_mut(words)) {
+                result = check(
+                    "MPI_Get",
+                    ffi::MPI_Get(
+                        dst.as_mut_ptr().cast(),
+                        count,
+                        ffi::RSMPI_UINT32_T,
+                        rank as c_int,
+                        disp as ffi::MPI_Aint,
+                        count,
+                        ffi::RSMPI_UINT32_T,
+                        self.win,
+                    ),
+                );
+                if result.is_err() {
+                    break;
+                }
+            }
+            // Always close the epoch, even after a failed Get.
+            let unlock = check("MPI_Win_unlock_all", ffi::MPI_Win_unlock_all(self.win));
+            result.and(unlock)
+        }
+    }
+}
+
+impl Drop for Window {
+    fn drop(&mut self) {
+        // SAFETY: collective; every member drops its window at the same point of the protocol
+        // (after the last frame). The memory is released after the window.
+        unsafe {
+            ffi::MPI_Win_free(&mut self.win);
+        }
+    }
+}
+
+/// Lets MPI make progress on what other ranks asked of this one (a passive Get over TCP is only
+/// served when the target enters MPI): one non-blocking probe on MPI_COMM_WORLD.
+pub fn poll_world() {
+    let mut flag: c_int = 0;
+    // SAFETY: called only between MPI_Init and MPI_Finalize (the hook is installed and removed
+    // by the cluster code inside that span); status is ignored.
+    unsafe {
+        ffi::MPI_Iprobe(
+            ffi::RSMPI_ANY_SOURCE,
+            ffi::RSMPI_ANY_TAG,
+            ffi::RSMPI_COMM_WORLD,
+            &mut flag,
+            ffi::RSMPI_STATUS_IGNORE,
+        );
+    }
+}
+
+/// Ends the whole job from any thread (the panic hook): `MPI_Abort` on MPI_COMM_WORLD.
+pub fn abort_world(code: i32) -> ! {
+    // SAFETY: MPI_Abort may be called from any state after MPI_Init.
+    unsafe {
+        ffi::MPI_Abort(ffi::RSMPI_COMM_WORLD, code);
+    }
+    std::process::exit(code)
+}
