@@ -92,7 +92,12 @@ pub fn write_exr(path: &Path, frame: &Frame, aovs: &[Aov]) -> Result<()> {
     let layer = Layer::new(
         (frame.width as usize, frame.height as usize),
         LayerAttributes::default(),
-        Encoding::FAST_LOSSLESS,
+        // Tiles in increasing order, not in the order parallel compression finishes them: the
+        // same frame always gives the same file.
+        Encoding {
+            line_order: LineOrder::Increasing,
+            ..Encoding::FAST_LOSSLESS
+        },
         AnyChannels::sort(SmallVec::from_vec(channels)),
     );
     Image::from_layer(layer)

@@ -3,6 +3,7 @@
 
 mod bad_input;
 mod cli;
+mod cluster;
 mod common;
 mod dc;
 mod gpu_vs_cpu;

@@ -1,0 +1,364 @@
+//! Cluster mode under mpirun: the image of K ranks is bit-identical to the single-process image
+//! for K = 1..5, replicated and with a distributed cache of 1/8, over shared memory and both TCP
+//! one-sided transports; a rank that dies or cannot read its model ends the job with an error.
+//! Every mpirun runs under `timeout`, and nextest runs these tests one at a time (see
+//! .config/nextest.toml): K ranks on 2 cores are already oversubscribed.
+
+use crate::common::*;
+use dcrt::output::{ExrSamples, read_exr};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const W: u32 = 72;
+const H: u32 = 56;
+const FRAMES: u32 = 2;
+
+/// Shared memory (Open MPI's default), TCP with the pt2pt one-sided component, and UCX.
+const SHARED: &[&str] = &[];
+const TCP_PT2PT: &[&str] = &["--mca", "btl", "tcp,self", "--mca", "osc", "pt2pt"];
+const UCX: &[&str] = &["--mca", "osc", "ucx"];
+
+fn dcrt_bin() -> &'static str {
+    env!("CARGO_BIN_EXE_dcrt")
+}
+
+/// Runs `mpirun -n k [mca] ARGS...` (MPMD when `args` contains ":"), killed after `limit` s.
+fn mpirun(k: u32, mca: &[&str], args: &[&str], env: &[(&str, &str)], limit: u32) -> Output {
+    let mut cmd = Command::new("timeout");
+    cmd.args(["-k", "5", &limit.to_string(), "mpirun", "--oversubscribe"])
+        .args(mca)
+        .args(["-n", &k.to_string(), dcrt_bin()])
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("mpirun (apt install openmpi-bin)")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A small prepared model (an rm isosurface of 40k triangles) and its single-process frames.
+struct Fixture {
+    dir: TempDir,
+    dcb: PathBuf,
+}
+
+impl Fixture {
+    fn new(tag: &str) -> Fixture {
+        let dir = TempDir::new(tag);
+        let scene = dir.write(
+            "rm.toml",
+            "[image]\nwidth = 72\nheight = 56\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 40000\n",
+        );
+        let dcb = dir.path("rm.dcb");
+        let out = dcrt(&[&"prepare", &scene, &"-o", &dcb]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let out = dcrt(&[
+            &"render",
+            &dcb,
+            &"-o",
+            &dir.path("single.png"),
+            &"--exr",
+            &dir.path("single.exr"),
+            &"--aov",
+            &"depth,id,normal",
+            &"--frames",
+            &FRAMES.to_string(),
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        Fixture { dir, dcb }
+    }
+
+    fn frame(&self, name: &str, ext: &str, f: u32) -> PathBuf {
+        self.dir.path(&format!("{name}_{f:04}.{ext}"))
+    }
+
+    /// Renders with `k` ranks and checks every frame against the single-process one: PNG
+    /// pixels, and every EXR channel when `exr`. Returns the blocks fetched in all frames.
+    fn check(&self, k: u32, mca: &[&str], cache: Option<&str>, exr: bool) -> u64 {
+        let name = format!("k{k}");
+        let png = self.dir.path(&format!("{name}.png"));
+        let exr_path = self.dir.path(&format!("{name}.exr"));
+        let dcb = self.dcb.to_str().unwrap();
+        let mut args = vec!["render", dcb, "-o", png.to_str().unwrap()];
+        let frames = FRAMES.to_string();
+        args.extend(["--frames", &frames, "--tile", "32", "--min-tile", "8"]);
+        if exr {
+            args.extend([
+                "--exr",
+                exr_path.to_str().unwrap(),
+                "--aov",
+                "depth,id,normal",
+            ]);
+        }
+        if let Some(c) = cache {
+            args.extend(["--cache", c]);
+        }
+        let out = mpirun(k, mca, &args, &[], 120);
+        let err = stderr(&out);
+        assert!(out.status.success(), "k={k} {mca:?} {cache:?}: {err}");
+        for f in 0..FRAMES {
+            let a = image::open(self.frame("single", "png", f))
+                .unwrap()
+                .to_rgb8();
+            let b = image::open(self.frame(&name, "png", f))
+                .unwrap_or_else(|e| panic!("k={k} frame {f}: {e}\n{err}"))
+                .to_rgb8();
+            assert_eq!(a.dimensions(), (W, H));
+            assert!(a == b, "k={k} {mca:?} {cache:?}: frame {f} PNG differs");
+            if exr {
+                let a = read_exr(&self.frame("single", "exr", f)).unwrap();
+                let b = read_exr(&self.frame(&name, "exr", f)).unwrap();
+                assert_eq!(a.len(), 8, "R G B Z id N.X N.Y N.Z");
+                for ((na, sa), (nb, sb)) in a.iter().zip(&b) {
+                    assert_eq!(na, nb);
+                    match (sa, sb) {
+                        (ExrSamples::F32(x), ExrSamples::F32(y)) => {
+                            let bits =
+                                |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                            assert!(bits(x) == bits(y), "k={k}: frame {f} channel {na} differs");
+                        }
+                        (x, y) => assert!(x == y, "k={k}: frame {f} channel {na} differs"),
+                    }
+                }
+            }
+            let _ = std::fs::remove_file(self.frame(&name, "png", f));
+            let _ = std::fs::remove_file(self.frame(&name, "exr", f));
+        }
+        fetched(&err)
+    }
+}
+
+/// Blocks fetched, from the display's per-frame lines ("..., 12 blocks fetched ...").
+fn fetched(stderr: &str) -> u64 {
+    stderr
+        .lines()
+        .filter(|l| l.starts_with("frame "))
+        .filter_map(|l| {
+            let i = l.find(" blocks fetched")?;
+            l[..i].rsplit(' ').next()?.parse::<u64>().ok()
+        })
+        .sum()
+}
+
+/// K = 1..5, replicated and DC 1/8, on one transport. With 3 or more render ranks the cache
+/// must have fetched blocks from the others, or the DC half would prove nothing.
+fn same_image_for_1_to_5_ranks(tag: &str, mca: &[&str]) {
+    let fx = Fixture::new(tag);
+    for k in 1..=5 {
+        // EXR (whole pixels on the wire) on odd K, PNG (RGB8 on the wire) on even K.
+        let exr = k % 2 == 1;
+        fx.check(k, mca, None, exr);
+        let n = fx.check(k, mca, Some("1/8"), exr);
+        if k >= 4 {
+            assert!(n > 0, "k={k}: the distributed cache fetched nothing");
+        }
+    }
+}
+
+#[test]
+fn same_image_for_1_to_5_ranks_over_shared_memory() {
+    same_image_for_1_to_5_ranks("cl-shm", SHARED);
+}
+
+#[test]
+fn same_image_for_1_to_5_ranks_over_tcp_and_pt2pt() {
+    same_image_for_1_to_5_ranks("cl-tcp", TCP_PT2PT);
+}
+
+#[test]
+fn same_image_for_1_to_5_ranks_over_ucx() {
+    same_image_for_1_to_5_ranks("cl-ucx", UCX);
+}
+
+/// From a scene file every render rank builds the model itself: the builds must agree (the
+/// ranks compare block fingerprints) and give the single-process image.
+#[test]
+fn ranks_building_from_a_scene_agree() {
+    let dir = TempDir::new("cl-scene");
+    let scene = dir.write(
+        "s.toml",
+        "[image]\nwidth = 64\nheight = 40\n\n[[mesh]]\ngenerator = \"assembly\"\ntriangles = 30000\n",
+    );
+    let single = dir.path("single.png");
+    let out = dcrt(&[&"render", &scene, &"-o", &single]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let multi = dir.path("multi.png");
+    let args = [
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        multi.to_str().unwrap(),
+    ];
+    let out = mpirun(
+        4,
+        SHARED,
+        &[&args[..], &["--cache", "1/4"]].concat(),
+        &[],
+        120,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let a = image::open(&single).unwrap().to_rgb8();
+    let b = image::open(&multi).unwrap().to_rgb8();
+    assert!(a == b, "scene render differs");
+}
+
+/// Traces: per frame, the display's, the balancer's and each render rank's file; the grants
+/// cover the image, and the display counted every pixel.
+#[test]
+fn traces_record_every_role() {
+    let fx = Fixture::new("cl-trace");
+    let traces = fx.dir.path("traces");
+    let out_png = fx.dir.path("t.png");
+    let args = [
+        "render",
+        fx.dcb.to_str().unwrap(),
+        "-o",
+        out_png.to_str().unwrap(),
+        "--trace",
+        traces.to_str().unwrap(),
+        "--cache",
+        "1/8",
+        "--tile",
+        "32",
+        "--min-tile",
+        "8",
+    ];
+    let out = mpirun(4, SHARED, &args, &[], 120);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let read = |rank: u32| -> Vec<serde_json::Value> {
+        let p = traces.join(format!("frame_0000.rank{rank}.jsonl"));
+        std::fs::read_to_string(&p)
+            .unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    };
+    let of = |v: &[serde_json::Value], t: &str| -> Vec<serde_json::Value> {
+        v.iter().filter(|e| e["type"] == t).cloned().collect()
+    };
+    let display = read(0);
+    let d = of(&display, "display");
+    assert_eq!(d.len(), 1);
+    assert_eq!(d[0]["pixels"], u64::from(W * H));
+    assert_eq!(
+        of(&display, "render").len(),
+        2,
+        "both render ranks' statistics"
+    );
+    assert_eq!(of(&display, "frame")[0]["role"], "display");
+    let balancer = read(1);
+    assert_eq!(of(&balancer, "frame")[0]["role"], "balancer");
+    let grants = of(&balancer, "grant");
+    let area: u64 = grants
+        .iter()
+        .filter(|g| g["kind"] != "end")
+        .map(|g| g["w"].as_u64().unwrap() * g["h"].as_u64().unwrap())
+        .sum();
+    assert_eq!(area, u64::from(W * H), "grants cover the image once");
+    assert_eq!(grants.iter().filter(|g| g["kind"] == "end").count(), 2);
+    let mut tiles = 0;
+    for r in [2, 3] {
+        let v = read(r);
+        tiles += of(&v, "tile").len();
+        let f = &of(&v, "frame")[0];
+        assert_eq!(f["role"], "render");
+        assert_eq!(f["ranks"], 4);
+    }
+    assert_eq!(
+        tiles,
+        grants.iter().filter(|g| g["kind"] != "end").count(),
+        "every grant rendered once"
+    );
+}
+
+/// A render rank that panics, or is killed, mid-frame ends the job with a non-zero exit well
+/// within 30 s (`timeout` would return 124).
+#[test]
+fn a_dying_rank_ends_the_job() {
+    let fx = Fixture::new("cl-die");
+    let png = fx.dir.path("die.png");
+    let args = [
+        "render",
+        fx.dcb.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+    ];
+    let args = [&args[..], &["--cache", "1/8", "--frames", "3"]].concat();
+    for how in ["panic@3", "kill@2"] {
+        let out = mpirun(4, SHARED, &args, &[("DCRT_TEST_FAIL", how)], 30);
+        let code = out.status.code();
+        assert!(!out.status.success(), "{how}: the job succeeded");
+        assert_ne!(code, Some(124), "{how}: still running after 30 s");
+        if how.starts_with("panic") {
+            assert!(stderr(&out).contains("rank 3: panic"), "{}", stderr(&out));
+        }
+    }
+}
+
+/// MPMD: the last rank is given a missing block file, or another model's: that rank says what
+/// is wrong, every rank exits, and no image is written.
+#[test]
+fn a_missing_or_different_model_on_one_rank_stops_every_rank() {
+    let fx = Fixture::new("cl-mismatch");
+    let other_scene = fx.dir.write(
+        "other.toml",
+        "[[mesh]]\ngenerator = \"assembly\"\ntriangles = 5000\n",
+    );
+    let other = fx.dir.path("other.dcb");
+    let out = dcrt(&[&"prepare", &other_scene, &"-o", &other]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let png = fx.dir.path("mm.png");
+    let good = fx.dcb.to_str().unwrap();
+    let missing = fx.dir.path("missing.dcb");
+    let cases: [(&Path, &str); 2] = [(&missing, "missing.dcb"), (&other, "differs from rank 2's")];
+    for (bad, expect) in cases {
+        let common = [
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "64",
+            "--height",
+            "56",
+        ];
+        let mut args = vec!["render", good];
+        args.extend(common);
+        args.extend([":", "-n", "1", dcrt_bin(), "render", bad.to_str().unwrap()]);
+        args.extend(common);
+        let out = mpirun(3, SHARED, &args, &[], 60);
+        let err = stderr(&out);
+        assert!(!out.status.success(), "{expect}: {err}");
+        assert_ne!(out.status.code(), Some(124), "{expect}: hung");
+        assert!(
+            err.contains("rank 3") && err.contains(expect),
+            "{expect}: {err}"
+        );
+        assert!(!exists(&png), "{expect}: an image was written");
+    }
+}
+
+/// Options that make no sense under mpirun are refused by every rank.
+#[test]
+fn virtual_ranks_are_refused_under_mpirun() {
+    let fx = Fixture::new("cl-opts");
+    let png = fx.dir.path("v.png");
+    let args = [
+        "render",
+        fx.dcb.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+    ];
+    let out = mpirun(
+        3,
+        SHARED,
+        &[&args[..], &["--virtual-ranks", "4"]].concat(),
+        &[],
+        60,
+    );
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("--virtual-ranks is for one process"));
+}
