@@ -124,6 +124,13 @@ struct ClusterArgs {
     /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
     #[arg(long, default_value_t = 300)]
     timeout: u64,
+    /// Display benchmark (chapter 5.5): the camera looks away from the model, tiles are traced
+    /// once and then resent, and the MPI bandwidth to the display is measured after the frames.
+    #[arg(long)]
+    display_bench: bool,
+    /// Write the run's figures (frame times, per-rank statistics) as JSON to this file.
+    #[arg(long)]
+    stats: Option<PathBuf>,
 }
 
 #[derive(Args, Clone)]
@@ -246,8 +253,14 @@ fn render(a: RenderArgs) -> Result<()> {
     if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
         return render_cluster(&a, format, k);
     }
+    if a.cluster.display_bench {
+        bail!(
+            "--display-bench measures the display of a cluster: run it under mpirun with 2 or more ranks"
+        );
+    }
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let mut report = Vec::new();
     let width = a.width.unwrap_or(loaded.width);
     let height = a.height.unwrap_or(loaded.height);
     check_image_size(width, height)?;
@@ -281,6 +294,9 @@ fn render(a: RenderArgs) -> Result<()> {
             .orbit(std::f64::consts::TAU * f64::from(i) / f64::from(a.frames));
         let (frame, stats) = render_frame(&mut tracer, &camera, width, height, loaded.background)?;
         let numbered = |p: &Path| output::numbered(p, i, a.frames);
+        report.push(
+            serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": &stats}),
+        );
         let png = numbered(&a.output);
         output::write_png(&png, &frame)?;
         if let Some(exr) = &a.exr {
@@ -329,6 +345,12 @@ fn render(a: RenderArgs) -> Result<()> {
             png.display()
         );
     }
+    if let Some(path) = &a.cluster.stats {
+        let all =
+            serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});
+        std::fs::write(path, all.to_string())
+            .with_context(|| format!("{}: cannot write the statistics", path.display()))?;
+    }
     Ok(())
 }
 
@@ -367,7 +389,8 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         min_tile: c.min_tile,
         message_bytes: c.message_bytes,
         timeout: std::time::Duration::from_secs(c.timeout),
-        resend: false,
+        display_bench: c.display_bench,
+        stats: c.stats.clone(),
     };
     dcrt::cluster::run(&opts)?;
     Ok(())

@@ -103,10 +103,13 @@ pub struct Options {
     pub message_bytes: usize,
     /// How long any wait (for a message, for the GPU) may last before the job is aborted.
     pub timeout: Duration,
-    /// Benchmark of the display (chapter 5.5): every frame after the first resends the first
-    /// frame's tiles instead of tracing them again, so the display and the network set the
-    /// frame rate. Also measures MPI bandwidth to the display.
-    pub resend: bool,
+    /// Benchmark of the display (chapter 5.5): the camera looks away from the model and does
+    /// not orbit, a tile traced once is sent again instead of traced again, so the display and
+    /// the network set the frame rate; then MPI bandwidth to the display is measured.
+    pub display_bench: bool,
+    /// Where rank 0 writes the run's figures as JSON (frame times, the render ranks'
+    /// statistics, the display benchmark).
+    pub stats: Option<PathBuf>,
 }
 
 /// Runs this process's role of a cluster render. Returns only on rank 0's success or a clean

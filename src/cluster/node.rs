@@ -210,6 +210,16 @@ fn disagreement(all: &[[u32; 6]], roles: Roles) -> Option<(u32, String)> {
     None
 }
 
+/// Between two empty probes: give the core away at once, and after a millisecond of waiting
+/// sleep, so that waiting ranks leave the cores to the ones that work (ranks outnumber cores).
+fn idle(probes: u32, since: Instant) {
+    if probes < 8 || since.elapsed() < Duration::from_millis(1) {
+        std::thread::yield_now();
+    } else {
+        std::thread::sleep(Duration::from_micros(100));
+    }
+}
+
 /// Waits for the next message (any source, any tag) for at most `timeout`, sleeping between
 /// probes so that a waiting rank leaves the cores to the ranks that work.
 fn wait_message(world: &SimpleCommunicator, timeout: Duration) -> Result<(Vec<u8>, u32, i32)> {
@@ -221,9 +231,7 @@ fn wait_message(world: &SimpleCommunicator, timeout: Duration) -> Result<(Vec<u8
             return Ok((data, status.source_rank() as u32, status.tag()));
         }
         empty += 1;
-        if empty > 32 {
-            std::thread::sleep(Duration::from_micros(100));
-        }
+        idle(empty, start);
         if start.elapsed() > timeout {
             return Err(Error::Invalid(format!(
                 "no message from any rank for {:.0} s: a rank has hung or died",
@@ -374,11 +382,15 @@ fn render_frames(
     let mut packer = Packer::new(wire, opts.message_bytes);
     let start = Instant::now();
     // The display benchmark keeps the first frame's tiles to send again.
-    let mut kept: BTreeMap<(u32, u32, u32, u32), Vec<crate::gpu::layout::Pixel>> = BTreeMap::new();
+    let mut kept: BTreeMap<(u32, u32, u32, u32), Vec<u8>> = BTreeMap::new();
     for frame in 0..opts.frames {
-        let camera = loaded
-            .camera
-            .orbit(std::f64::consts::TAU * f64::from(frame) / f64::from(opts.frames));
+        let camera = if opts.display_bench {
+            loaded.camera.turned_around()
+        } else {
+            loaded
+                .camera
+                .orbit(std::f64::consts::TAU * f64::from(frame) / f64::from(opts.frames))
+        };
         let basis = camera.basis(width, height);
         let mut stats = tracer.begin_frame();
         let mut events = Vec::new();
@@ -427,25 +439,28 @@ fn render_frames(
                 }
                 continue;
             };
-            if queue.is_empty() && !ended && !asked {
+            // Ask for the next tile while one is still queued, so that the answer is in before
+            // the queue runs dry.
+            if queue.len() <= 1 && !ended && !asked {
                 balancer.send_with_tag(&words(&[frame])[..], TAG_ASK);
                 asked = true;
             }
             inject_failure(rank, frame);
             let t0 = start.elapsed();
             let key = (rect.x, rect.y, rect.w, rect.h);
-            let pixels = match kept.get(&key) {
-                Some(p) if opts.resend => p.clone(),
-                _ => {
+            let encoded = match kept.get(&key) {
+                Some(p) => p.clone(),
+                None => {
                     let p = tracer.render_rect(&basis, loaded.background, rect, &mut stats)?;
-                    if opts.resend {
-                        kept.insert(key, p.clone());
+                    let e = packer.encode(&p);
+                    if opts.display_bench {
+                        kept.insert(key, e.clone());
                     }
-                    p
+                    e
                 }
             };
             let t1 = start.elapsed();
-            for m in packer.push(frame, rect, &pixels) {
+            for m in packer.push_encoded(frame, rect, &encoded) {
                 sent_bytes += m.len() as u64;
                 messages += 1;
                 display.send_with_tag(&m[..], TAG_PIXELS);
@@ -475,7 +490,9 @@ fn render_frames(
             trace.write(dir)?;
         }
     }
-    if opts.resend {
+    if opts.display_bench {
+        // Only once the display has every frame: the stream must not mix with pixels.
+        world.barrier();
         bandwidth_sender(world, opts)?;
     }
     Ok(())
@@ -509,11 +526,13 @@ fn inject_failure(rank: u32, frame: u32) {
 fn wait_work(world: &SimpleCommunicator, roles: Roles, timeout: Duration) -> Result<Vec<u8>> {
     let from = world.process_at_rank(roles.balancer() as i32);
     let start = Instant::now();
+    let mut empty = 0u32;
     loop {
         if let Some(probed) = from.immediate_matched_probe_with_tag(TAG_WORK) {
             return Ok(probed.matched_receive_vec::<u8>().0);
         }
-        std::thread::sleep(Duration::from_micros(50));
+        empty += 1;
+        idle(empty, start);
         if start.elapsed() > timeout {
             return Err(Error::Invalid(format!(
                 "no answer from the balancer for {:.0} s",
@@ -670,6 +689,7 @@ fn coordinate(
     let mut writers: Vec<JoinHandle<Result<()>>> = Vec::new();
     let start = Instant::now();
     let mut shown = Vec::new();
+    let mut report = Vec::new();
     while balancer.as_ref().is_some_and(|b| !b.finished()) || (display && written < opts.frames) {
         let (msg, from, tag) = wait_message(world, opts.timeout)?;
         match tag {
@@ -730,6 +750,11 @@ fn coordinate(
                     let complete_ms = ms(start.elapsed());
                     shown.push(complete_ms);
                     summarize(f, &a.render, complete_ms - a.first_ms, opts);
+                    report.push(json!({
+                        "frame": f, "complete_ms": complete_ms,
+                        "span_ms": complete_ms - a.first_ms, "messages": a.messages,
+                        "bytes": a.bytes, "render": &a.render,
+                    }));
                     let mut events = a.render;
                     for e in &mut events {
                         e["type"] = "render".into();
@@ -748,7 +773,11 @@ fn coordinate(
                     }
                     let opts = opts.clone();
                     writers.push(std::thread::spawn(move || {
-                        write_frame(&opts, f, buf, wire)?;
+                        // The display benchmark measures receiving and assembling frames; only
+                        // its last frame is encoded, to show what was received.
+                        if !opts.display_bench || f + 1 == opts.frames {
+                            write_frame(&opts, f, buf, wire)?;
+                        }
                         if let Some(dir) = &opts.trace {
                             write_events(dir, f, rank, roles, events)?;
                         }
@@ -768,8 +797,25 @@ fn coordinate(
         w.join()
             .map_err(|_| Error::Invalid("an image writer panicked".into()))??;
     }
-    if display && opts.resend {
-        display_bench(world, roles, opts, image, &shown)?;
+    if opts.display_bench {
+        world.barrier();
+    }
+    if !display {
+        return Ok(());
+    }
+    let bench = if opts.display_bench {
+        Some(display_bench(world, roles, opts, image, &shown)?)
+    } else {
+        None
+    };
+    if let Some(path) = &opts.stats {
+        let all = json!({
+            "ranks": roles.size, "render_ranks": roles.render_ranks(),
+            "width": image.width, "height": image.height,
+            "cache": opts.cache.map(|(c, m)| format!("{c:?} {m:?}")),
+            "frames": report, "display_bench": bench,
+        });
+        std::fs::write(path, all.to_string()).map_err(|e| Error::io(path, e))?;
     }
     Ok(())
 }
@@ -865,7 +911,7 @@ fn display_bench(
     opts: &Options,
     image: Image,
     shown: &[f64],
-) -> Result<()> {
+) -> Result<serde_json::Value> {
     let start = Instant::now();
     let mut ended = 0;
     let mut bytes = 0u64;
@@ -904,6 +950,6 @@ fn display_bench(
         "mpi_bytes_per_s": mpi_bps, "ceiling_fps": mpi_bps / (px * bpp),
         "ratio": pps * bpp / mpi_bps,
     });
-    println!("{report}");
-    Ok(())
+    eprintln!("display benchmark: {report}");
+    Ok(report)
 }

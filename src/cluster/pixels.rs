@@ -60,13 +60,28 @@ impl Packer {
     /// Adds the `rect.w * rect.h` pixels of `rect` (row-major) of frame `frame`; returns the
     /// messages that filled up.
     pub fn push(&mut self, frame: u32, rect: Rect, pixels: &[Pixel]) -> Vec<Vec<u8>> {
-        assert_eq!(pixels.len(), rect.pixels(), "pixels of {rect:?}");
+        let bytes = self.encode(pixels);
+        self.push_encoded(frame, rect, &bytes)
+    }
+
+    /// The wire form of some pixels.
+    pub fn encode(&self, pixels: &[Pixel]) -> Vec<u8> {
+        let mut out = Vec::with_capacity(pixels.len() * self.wire.bytes());
+        for p in pixels {
+            self.wire.encode(p, &mut out);
+        }
+        out
+    }
+
+    /// Like `push`, for pixels already encoded by `encode`.
+    pub fn push_encoded(&mut self, frame: u32, rect: Rect, bytes: &[u8]) -> Vec<Vec<u8>> {
+        let row = rect.w as usize * self.wire.bytes();
+        assert_eq!(bytes.len(), row * rect.h as usize, "pixels of {rect:?}");
         let mut full = Vec::new();
         if frame != self.frame && !self.buf.is_empty() {
             full.extend(self.flush());
         }
         self.frame = frame;
-        let row = rect.w as usize * self.wire.bytes();
         let mut y = 0;
         while y < rect.h {
             if self.buf.is_empty() {
@@ -78,19 +93,12 @@ impl Packer {
                 continue;
             }
             let rows = (room.max(1) as u32).min(rect.h - y);
-            let band = Rect {
-                x: rect.x,
-                y: rect.y + y,
-                w: rect.w,
-                h: rows,
-            };
-            for v in [band.x, band.y, band.w, band.h] {
+            for v in [rect.x, rect.y + y, rect.w, rows] {
                 self.buf.extend_from_slice(&v.to_le_bytes());
             }
-            let first = (y * rect.w) as usize;
-            for p in &pixels[first..first + band.pixels()] {
-                self.wire.encode(p, &mut self.buf);
-            }
+            let first = y as usize * row;
+            self.buf
+                .extend_from_slice(&bytes[first..first + rows as usize * row]);
             y += rows;
             if self.buf.len() >= self.target {
                 full.extend(self.flush());

@@ -78,6 +78,16 @@ impl Camera {
         }
     }
 
+    /// The camera at the same place looking the opposite way (the display benchmark's blank
+    /// frame: no ray reaches the model in front of the original view).
+    pub fn turned_around(&self) -> Camera {
+        let (p, f) = (DVec3::from(self.position), DVec3::from(self.focal_point));
+        Camera {
+            focal_point: (2.0 * p - f).into(),
+            ..*self
+        }
+    }
+
     /// The same camera turned by `angle` radians about the axis through the focal point along
     /// `view_up`: the orbit used for multi-frame renders.
     pub fn orbit(&self, angle: f64) -> Camera {
