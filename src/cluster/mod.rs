@@ -5,6 +5,7 @@
 //! own blocks and reads borrowed ones from their owners with one-sided MPI.
 
 pub mod balance;
+pub mod bench;
 pub mod pixels;
 
 #[cfg(feature = "mpi")]
