@@ -161,6 +161,11 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     let loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
     let gpu = Gpu::new(opts.adapter.as_deref())?;
     let dc = match opts.cache {
+        // A single render rank owns every block: a cache would only slow its pipelines down.
+        Some(_) if roles.render_ranks() == 1 => {
+            eprintln!("rank {rank}: the only render rank owns every block: no cache needed");
+            None
+        }
         None => None,
         Some((size, map)) => {
             let ranks = Ranks::new(roles.render_ranks(), index)?;
@@ -257,8 +262,7 @@ fn read_words(b: &[u8]) -> Result<Vec<u32>> {
 
 /// Borrowed blocks read from their owners' windows, a whole round in one epoch.
 struct MpiBlocks {
-    /// `None` with a single render rank, which owns every block.
-    window: Option<rma::Window>,
+    window: rma::Window,
     ranks: Ranks,
     words: usize,
 }
@@ -274,12 +278,7 @@ impl BlockSource for MpiBlocks {
                 )
             })
             .collect();
-        match &self.window {
-            Some(w) => w.get_all(&gets, self.words, out),
-            None => Err(Error::Invalid(format!(
-                "blocks {blocks:?} faulted, but the only render rank owns every block"
-            ))),
-        }
+        self.window.get_all(&gets, self.words, out)
     }
 
     fn name(&self) -> &'static str {
@@ -313,12 +312,7 @@ fn render(
         }
         Some((ranks, resident, size, map)) => {
             let owned = ranks.owned(loaded.block_count()) as usize;
-            // One render rank owns every block: nothing to expose, nothing to fetch.
-            let window = if ranks.n > 1 {
-                Some(rma::Window::create(comm, resident[..owned * bw].to_vec())?)
-            } else {
-                None
-            };
+            let window = rma::Window::create(comm, resident[..owned * bw].to_vec())?;
             let lines = size.lines(loaded.block_count(), format.block_bytes);
             eprintln!(
                 "rank {rank} (render {} of {}): {:.1} MiB resident ({} own blocks + root), \
@@ -328,7 +322,7 @@ fn render(
                 ranks.n,
                 mib((resident.len() * 4) as u64),
                 owned,
-                mib(window.as_ref().map_or(0, rma::Window::exposed_bytes)),
+                mib(window.exposed_bytes()),
                 mib(u64::from(lines) * u64::from(format.block_bytes)),
                 mib(loaded.model_bytes())
             );
