@@ -662,6 +662,19 @@ struct Assembly {
     render: Vec<serde_json::Value>,
 }
 
+impl Assembly {
+    fn new(image: Image, wire: Wire, start: Instant) -> Assembly {
+        Assembly {
+            buf: Arc::new(FrameBuf::new(image.width, image.height, wire)),
+            done: 0,
+            messages: 0,
+            bytes: 0,
+            first_ms: ms(start.elapsed()),
+            render: Vec::new(),
+        }
+    }
+}
+
 /// Rank 0 (display, and balancer with 2 ranks) or rank 1 (balancer).
 fn coordinate(
     world: &SimpleCommunicator,
@@ -700,14 +713,9 @@ fn coordinate(
             }
             TAG_PIXELS if display => {
                 let f = message_frame(&msg)?;
-                let a = frames.entry(f).or_insert_with(|| Assembly {
-                    buf: Arc::new(FrameBuf::new(image.width, image.height, wire)),
-                    done: 0,
-                    messages: 0,
-                    bytes: 0,
-                    first_ms: ms(start.elapsed()),
-                    render: Vec::new(),
-                });
+                let a = frames
+                    .entry(f)
+                    .or_insert_with(|| Assembly::new(image, wire, start));
                 a.messages += 1;
                 a.bytes += msg.len() as u64;
                 copiers.copy(&a.buf, msg);
@@ -717,14 +725,9 @@ fn coordinate(
                 let stats: serde_json::Value = serde_json::from_slice(&msg[4..]).map_err(|e| {
                     Error::Invalid(format!("frame statistics from rank {from}: {e}"))
                 })?;
-                let a = frames.entry(f).or_insert_with(|| Assembly {
-                    buf: Arc::new(FrameBuf::new(image.width, image.height, wire)),
-                    done: 0,
-                    messages: 0,
-                    bytes: 0,
-                    first_ms: ms(start.elapsed()),
-                    render: Vec::new(),
-                });
+                let a = frames
+                    .entry(f)
+                    .or_insert_with(|| Assembly::new(image, wire, start));
                 a.done += 1;
                 a.render.push(stats);
                 if a.done == roles.render_ranks() {
