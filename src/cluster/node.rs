@@ -336,7 +336,12 @@ fn render(
                     words: bw,
                 }),
             };
-            loaded.dc_tracer(&gpu, opts.settings, &resident, setup)?
+            // From here the window exists, and freeing it is collective: an error must abort
+            // the job rather than unwind into a free the other ranks never join.
+            or_abort(
+                rank,
+                loaded.dc_tracer(&gpu, opts.settings, &resident, setup),
+            )
         }
     };
     // While the GPU works, keep MPI progressing: over TCP a passive Get from another rank is
@@ -345,13 +350,23 @@ fn render(
         hook: Box::new(rma::poll_world),
         limit: opts.timeout,
     }));
-    let result = render_frames(world, roles, rank, opts, &loaded, &mut tracer);
+    or_abort(
+        rank,
+        render_frames(world, roles, rank, opts, &loaded, &mut tracer),
+    );
     gpu.set_idle(None);
-    result?;
     // Dropping the tracer frees the block window: collective over the render ranks, after
     // which no rank reads another's blocks.
     drop(tracer);
     Ok(())
+}
+
+/// The value, or the error reported and the job aborted.
+fn or_abort<T>(rank: u32, r: Result<T>) -> T {
+    r.unwrap_or_else(|e| {
+        eprintln!("rank {rank}: error: {e}");
+        rma::abort_world(1)
+    })
 }
 
 fn render_frames(
