@@ -68,13 +68,13 @@ impl Window {
         }
         let count = c_int::try_from(words)
             .map_err(|_| Error::Invalid(format!("{words} words in one Get")))?;
+        // No MPI_MODE_NOCHECK assertion: Open MPI 4.1's osc ucx corrupts memory with it (the
+        // test `six_ranks_over_ucx_with_many_blocks` caught it), and nobody else locks these
+        // windows, so the assertion would buy nothing.
         // SAFETY: the window is live; `u32` matches MPI_UINT32_T; each destination piece is
         // `words` u32 inside `out`, which outlives the epoch closed by unlock_all below.
         unsafe {
-            check(
-                "MPI_Win_lock_all",
-                ffi::MPI_Win_lock_all(ffi::MPI_MODE_NOCHECK as c_int, self.win),
-            )?;
+            check("MPI_Win_lock_all", ffi::MPI_Win_lock_all(0, self.win))?;
             let mut result = Ok(());
             for (&(rank, disp), dst) in gets.iter().zip(out.chunks_mut(words)) {
                 result = check(
