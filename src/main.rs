@@ -227,8 +227,11 @@ struct BenchArgs {
     copy_threads: Vec<u32>,
     #[arg(long, default_value_t = 4)]
     display_ranks: u32,
-    #[arg(long, default_value_t = 24)]
+    #[arg(long, default_value_t = 60)]
     display_frames: u32,
+    /// Only the display benchmark.
+    #[arg(long)]
+    display_only: bool,
     #[command(flatten)]
     gpu: GpuArgs,
 }
@@ -481,7 +484,11 @@ fn bench_cluster(a: &BenchArgs, format: Format) -> Result<()> {
         display_ranks: a.display_ranks,
         timeout_seconds: 600,
     };
-    let rows = plan.frame_times()?;
+    let rows = if a.display_only {
+        Vec::new()
+    } else {
+        plan.frame_times()?
+    };
     let display_plan = Plan {
         frames: a.display_frames,
         width: 1920,
