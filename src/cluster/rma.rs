@@ -68,9 +68,10 @@ impl Window {
         }
         let count = c_int::try_from(words)
             .map_err(|_| Error::Invalid(format!("{words} words in one Get")))?;
-        // No MPI_MODE_NOCHECK assertion: Open MPI 4.1's osc ucx corrupts memory with it (the
-        // test `six_ranks_over_ucx_with_many_blocks` caught it), and nobody else locks these
-        // windows, so the assertion would buy nothing.
+        // No MPI_MODE_NOCHECK assertion: with it Open MPI 4.1's osc ucx corrupted the heap or
+        // hung in about half the runs of 6 ranks on a 1M-triangle model, and nobody else locks
+        // these windows, so it would buy nothing. (One epoch for the whole run, with a
+        // flush_all per round, gained nothing measurable and once failed over osc ucx.)
         // SAFETY: the window is live; `u32` matches MPI_UINT32_T; each destination piece is
         // `words` u32 inside `out`, which outlives the epoch closed by unlock_all below.
         unsafe {
