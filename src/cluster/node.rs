@@ -312,7 +312,7 @@ fn render(
         }
         Some((ranks, resident, size, map)) => {
             let owned = ranks.owned(loaded.block_count()) as usize;
-            let window = rma::Window::create(comm, resident[..owned * bw].to_vec())?;
+            let window = rma::Window::create(comm, &resident[..owned * bw])?;
             let lines = size.lines(loaded.block_count(), format.block_bytes);
             eprintln!(
                 "rank {rank} (render {} of {}): {:.1} MiB resident ({} own blocks + root), \

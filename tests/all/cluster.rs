@@ -201,9 +201,9 @@ fn same_image_for_1_to_5_ranks_over_ucx() {
 }
 
 /// Six ranks over UCX with fault rounds of hundreds of blocks (a 1M-triangle model, the default
-/// large tiles), three runs. With epochs opened with `MPI_MODE_NOCHECK`, Open MPI 4.1's osc ucx
-/// corrupted the heap or hung in about half of such runs on a loaded machine; this test did not
-/// always catch it, so it guards the transport at this size rather than that assertion.
+/// large tiles), three runs. With windows made by `MPI_Win_create` over our own memory, Open
+/// MPI 4.1's osc ucx corrupted the heap or hung in about a third of such runs (this test caught
+/// it); the failure is random, so three runs catch it most of the time.
 #[test]
 fn six_ranks_over_ucx_with_many_blocks() {
     let fx = Fixture::with("cl-ucx6", 1_000_000, 256, 192);
