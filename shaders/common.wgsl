@@ -339,6 +339,19 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     return t;
 }
 
+// Whether a ray can be traced: finite origin, direction and tmax (checked on the bits: WGSL
+// implementations may assume no NaN or infinity, so IEEE comparisons cannot be trusted to find
+// them), a nonzero direction and a positive tmax. Other rays are misses.
+fn ray_valid(r: RayState) -> bool {
+    let e = (bitcast<vec3<u32>>(ray_origin(r)) >> vec3(23u)) & vec3(0xffu);
+    let f = (bitcast<vec3<u32>>(ray_dir(r)) >> vec3(23u)) & vec3(0xffu);
+    let g = (bitcast<u32>(r.t) >> 23u) & 0xffu;
+    let finite = all(e != vec3(0xffu)) && all(f != vec3(0xffu)) && g != 0xffu;
+    // Sign bits masked off: -0.0 is zero too.
+    let nonzero = any((bitcast<vec3<u32>>(ray_dir(r)) & vec3(0x7fffffffu)) != vec3(0u));
+    return finite && nonzero && r.t > 0.0;
+}
+
 fn ray_origin(r: RayState) -> vec3<f32> {
     return vec3(r.ox, r.oy, r.oz);
 }
