@@ -326,7 +326,8 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     if det == 0.0 {
         return -1.0;
     }
-    let tt = u * (sh.s.z * a[sh.k.z]) + v * (sh.s.z * b[sh.k.z]) + w * (sh.s.z * c[sh.k.z]);
+    let z = sh.s.z * vec3(a[sh.k.z], b[sh.k.z], c[sh.k.z]);
+    let tt = u * z.x + v * z.y + w * z.z;
     // Sign-aware: the hit is in front when tt and det agree in sign.
     let stt = select(tt, -tt, det < 0.0);
     if stt <= 0.0 {
@@ -336,7 +337,28 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     if t <= 0.0 || t >= tmax {
         return -1.0;
     }
+    // A hit closer than the rounding error of t may be behind the origin: a ray leaving a
+    // surface would hit it again (pbrt-v4's conservative t; a needle's error grows with its
+    // length over its width, beyond any origin offset).
+    let max_z = max(max(abs(z.x), abs(z.y)), abs(z.z));
+    let max_x = max(max(abs(a2.x), abs(b2.x)), abs(c2.x));
+    let max_y = max(max(abs(a2.y), abs(b2.y)), abs(c2.y));
+    let max_e = max(max(abs(u), abs(v)), abs(w));
+    let delta_x = gamma(5.0) * (max_x + max_z);
+    let delta_y = gamma(5.0) * (max_y + max_z);
+    let delta_z = gamma(3.0) * max_z;
+    let delta_e = 2.0 * (gamma(2.0) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    let delta_t = 3.0 * (gamma(3.0) * max_e * max_z + delta_e * max_z + delta_z * max_e) / abs(det);
+    if t <= delta_t {
+        return -1.0;
+    }
     return t;
+}
+
+// Bound on the relative rounding error of n correctly rounded f32 operations (pbrt's gamma).
+fn gamma(n: f32) -> f32 {
+    let u = 5.9604645e-8;  // 2^-24
+    return n * u / (1.0 - n * u);
 }
 
 // Whether a ray can be traced: finite origin, direction and tmax (checked on the bits: WGSL
