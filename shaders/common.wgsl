@@ -253,11 +253,12 @@ fn prim_id_at(row: u32, slot: u32) -> u32 {
 
 // Reciprocal of a direction, clamped so that no component is infinite: WGSL does not promise
 // IEEE behaviour for 1/0, and a huge finite value gives the same slab answer without NaNs.
+// A clamped component is exactly +-PARALLEL_INV, which box_entry recognizes.
+const PARALLEL_INV: f32 = 1e20;
 fn safe_inverse(d: vec3<f32>) -> vec3<f32> {
     let tiny = 1e-20;
-    let s = select(vec3(-tiny), vec3(tiny), d >= vec3(0.0));
-    let c = select(d, s, abs(d) < vec3(tiny));
-    return 1.0 / c;
+    let s = select(vec3(-PARALLEL_INV), vec3(PARALLEL_INV), d >= vec3(0.0));
+    return select(1.0 / d, s, abs(d) < vec3(tiny));
 }
 
 // Conservative slab test (Ize, JCGT 2013): the exit distance is widened to cover the rounding of
@@ -266,8 +267,12 @@ const EXIT_WIDEN: f32 = 1.0000024;
 fn box_entry(lo: vec3<f32>, hi: vec3<f32>, org: vec3<f32>, inv: vec3<f32>, tmax: f32) -> f32 {
     let t0 = (lo - org) * inv;
     let t1 = (hi - org) * inv;
-    let tn = min(t0, t1);
-    let tf = max(t0, t1);
+    // A ray parallel to a slab and lying in one of its planes stays in the slab for every t, but
+    // 0 * inv gives 0 for that plane and would cut the interval at t = 0: such a ray would slip
+    // past a mesh edge or face it runs along. Inside the closed slab, the interval is unbounded.
+    let along = abs(inv) == vec3(PARALLEL_INV) & org >= lo & org <= hi;
+    let tn = select(min(t0, t1), vec3(-FAR), along);
+    let tf = select(max(t0, t1), vec3(FAR), along);
     let enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
     let exit = min(min(tf.x, tf.y), tf.z) * EXIT_WIDEN;
     return select(-1.0, enter, enter <= min(exit, tmax));
