@@ -379,6 +379,24 @@ fn ray_valid(r: RayState) -> bool {
     return finite && nonzero && r.t > 0.0;
 }
 
+fn max3(v: vec3<f32>) -> f32 {
+    return max(max(v.x, v.y), v.z);
+}
+
+// Unit geometric normal, normalize((v1 - v0) x (v2 - v0)), scaled before squaring: a plain
+// normalize gives NaN for triangles below ~1e-13 (the squares underflow) and zero above ~1e10
+// (they overflow). A hit triangle has nonzero edges; if its edges are parallel in f32 (a
+// needle), any unit vector perpendicular to the first edge is returned.
+fn unit_normal(tri: Tri) -> vec3<f32> {
+    let e1 = tri.v1 - tri.v0;
+    let e2 = tri.v2 - tri.v0;
+    let c = cross(e1 / max3(abs(e1)), e2 / max3(abs(e2)));
+    let m = max3(abs(c));
+    let p = select(vec3(0.0, -e1.z, e1.y), vec3(-e1.y, e1.x, 0.0), abs(e1.x) > abs(e1.z));
+    let n = select(p / max3(abs(p)), c / m, m > 0.0);
+    return normalize(n);
+}
+
 fn ray_origin(r: RayState) -> vec3<f32> {
     return vec3(r.ox, r.oy, r.oz);
 }

@@ -182,7 +182,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     if t > 0.0 {
                         r.t = t;
                         r.hit = cur.index + k;
-                        let n = normalize(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
+                        let n = unit_normal(tri);
                         r.nx = n.x;
                         r.ny = n.y;
                         r.nz = n.z;
