@@ -710,3 +710,134 @@ fn coordinates_around_1e7_match_the_reference() {
     assert!(a.worst_t <= 1e-5, "{a:?}");
     assert_eq!(a.bad_values, 0, "{a:?}");
 }
+
+// --- A deep, unbalanced BVH ---
+
+/// A caterpillar BVH of `depth` levels built by hand: triangles T_i at z = i (0..depth), each
+/// covering [-1, 1]^2 in x, y; every inner node has the leaf of its farthest triangle and the
+/// inner node of the others as children. A ray along +z from z = -1 enters the inner child first
+/// at every level and pushes the leaf: it needs `depth - 1` stack entries, and hits T_0 at t = 1.
+fn caterpillar(depth: usize) -> (Bvh, Vec<Tri>) {
+    let tris: Vec<Tri> = (0..depth)
+        .map(|i| {
+            let z = i as f32;
+            [[-4.0, -4.0, z], [4.0, -4.0, z], [0.0, 4.0, z]]
+        })
+        .collect();
+    let boxed = |lo: usize, hi: usize, index: u32, count: u32| Node {
+        min: [-4.0, -4.0, lo as f32],
+        max: [4.0, 4.0, hi as f32],
+        index,
+        count,
+    };
+    let m = depth - 1;
+    let mut nodes = vec![boxed(0, m, 2, 0), Node::default()];
+    for j in 0..m {
+        // Pair j at 2 + 2j: the leaf of T_{m-j}, then the rest (T_0..T_{m-j-1}).
+        nodes.push(boxed(m - j, m - j, (m - j) as u32, 1));
+        let rest = m - j - 1;
+        nodes.push(if rest == 0 {
+            boxed(0, 0, 0, 1)
+        } else {
+            boxed(0, rest, (4 + 2 * j) as u32, 0)
+        });
+    }
+    let bvh = Bvh {
+        nodes,
+        triangles: tris.clone(),
+        prim_ids: (0..depth as u32).collect(),
+        depth: depth as u32,
+        build_time: Duration::ZERO,
+        layout_time: Duration::ZERO,
+    };
+    (bvh, tris)
+}
+
+/// A tracer over a hand-built BVH that declares `declared` as its depth.
+fn deep_tracer<'g>(
+    gpu: &'g Gpu,
+    blocks: &Blocks,
+    declared: u32,
+) -> dcrt::error::Result<Tracer<'g>> {
+    let meshes = Meshes {
+        first_prim: vec![0],
+        colors: vec![[1.0; 3]],
+    };
+    let model = GpuModel {
+        format: blocks.format,
+        node_blocks: blocks.node_blocks,
+        tri_blocks: blocks.tri_blocks,
+        resident: &blocks.words,
+        meshes: &meshes,
+        depth: declared,
+    };
+    Tracer::new(gpu, &model, Settings::default(), None)
+}
+
+fn deep_rays() -> Vec<Ray> {
+    (0..64)
+        .map(|i| ray([-0.9 + 0.028 * i as f32, 0.3, -1.0], [0.0, 0.0, 1.0]))
+        .collect()
+}
+
+/// A caterpillar BVH 300 levels deep (deeper than the old fixed 256-entry stack): the stack is
+/// sized to the depth. Pass: every ray hits T_0 at t = 1, as the reference does.
+#[test]
+fn deep_unbalanced_bvh_is_traced_with_a_stack_as_deep() {
+    let gpu = gpu();
+    let (bvh, tris) = caterpillar(300);
+    let blocks = Blocks::pack(&bvh, Format::default()).unwrap();
+    let mut tracer = deep_tracer(&gpu, &blocks, bvh.depth).unwrap();
+    assert_eq!(tracer.stack_size(), 300);
+    let rays = deep_rays();
+    let hits = tracer.trace_rays(&rays).unwrap();
+    let cpu = Reference::new(&tris).closest_hits(&rays);
+    for (h, c) in hits.iter().zip(&cpu) {
+        let h = h.expect("hit");
+        assert_eq!((h.prim, h.t), (0, 1.0));
+        assert_eq!(c.map(|c| (c.prim, c.t)), Some((0, 1.0)));
+    }
+}
+
+/// Stack overflow is an error, never a wrong hit: the same tree declaring depth 100 (as a
+/// damaged block file could), and a tree deeper than the largest stack (`MAX_STACK` + 64 levels).
+/// Pass: `trace_rays` and `render` return an error that names the overflow and the depth.
+#[test]
+fn traversal_stack_overflow_is_an_error() {
+    let gpu = gpu();
+    let (bvh, _) = caterpillar(300);
+    let blocks = Blocks::pack(&bvh, Format::default()).unwrap();
+    let mut tracer = deep_tracer(&gpu, &blocks, 100).unwrap();
+    let err = tracer.trace_rays(&deep_rays()).unwrap_err().to_string();
+    eprintln!("declared depth 100: {err}");
+    assert!(
+        err.contains("stack overflow") && err.contains("depth 100"),
+        "{err}"
+    );
+    let camera = dcrt::scene::Camera {
+        position: [0.0, 0.0, -2.0],
+        focal_point: [0.0, 0.0, 0.0],
+        view_up: [0.0, 1.0, 0.0],
+        view_angle: 30.0,
+    };
+    let err = tracer
+        .render(&camera.basis(16, 16), [0.0; 3])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("stack overflow"), "{err}");
+
+    let deep = MAX_STACK as usize + 64;
+    let (bvh, _) = caterpillar(deep);
+    let blocks = Blocks::pack(&bvh, Format::default()).unwrap();
+    let mut tracer = deep_tracer(&gpu, &blocks, bvh.depth).unwrap();
+    assert_eq!(tracer.stack_size(), MAX_STACK);
+    let err = tracer
+        .trace_rays(&deep_rays()[..4])
+        .unwrap_err()
+        .to_string();
+    eprintln!("depth {deep}: {err}");
+    assert!(
+        err.contains("stack overflow") && err.contains(&format!("depth {deep}")),
+        "{err}"
+    );
+}
