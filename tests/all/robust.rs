@@ -185,8 +185,8 @@ fn plane(center: [f64; 3], half: f64, n: usize) -> Vec<Tri> {
     tris
 }
 
-/// Traces `rays` that must all hit the closed or covering `tris`: returns the misses, after
-/// checking the GPU against the reference on every ray.
+/// Traces `rays` that must all hit the closed or covering `tris`, on the GPU and in the
+/// reference, and checks the miss rate and the agreement of the two.
 fn watertight_case(gpu: &Gpu, name: &str, tris: Vec<Tri>, rays: &[Ray]) {
     let reference = Reference::new(&tris);
     let hits = trace(gpu, tris, rays);
