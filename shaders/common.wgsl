@@ -384,9 +384,10 @@ fn max3(v: vec3<f32>) -> f32 {
 }
 
 // Unit geometric normal, normalize((v1 - v0) x (v2 - v0)), scaled before squaring: a plain
-// normalize gives NaN for triangles below ~1e-13 (the squares underflow) and zero above ~1e10
-// (they overflow). A hit triangle has nonzero edges; if its edges are parallel in f32 (a
-// needle), any unit vector perpendicular to the first edge is returned.
+// normalize loses the squares to denormals below ~1e-10 across (a normal that is not unit, or
+// NaN) and overflows above ~1e10 (a zero normal). A hit triangle has nonzero edges; if its
+// edges are parallel in f32 (a needle), any unit vector perpendicular to the first edge is
+// returned.
 fn unit_normal(tri: Tri) -> vec3<f32> {
     let e1 = tri.v1 - tri.v0;
     let e2 = tri.v2 - tri.v0;
