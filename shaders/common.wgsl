@@ -253,11 +253,12 @@ fn prim_id_at(row: u32, slot: u32) -> u32 {
 
 // Reciprocal of a direction, clamped so that no component is infinite: WGSL does not promise
 // IEEE behaviour for 1/0, and a huge finite value gives the same slab answer without NaNs.
+// A clamped component is exactly +-PARALLEL_INV, which box_entry recognizes.
+const PARALLEL_INV: f32 = 1e20;
 fn safe_inverse(d: vec3<f32>) -> vec3<f32> {
     let tiny = 1e-20;
-    let s = select(vec3(-tiny), vec3(tiny), d >= vec3(0.0));
-    let c = select(d, s, abs(d) < vec3(tiny));
-    return 1.0 / c;
+    let s = select(vec3(-PARALLEL_INV), vec3(PARALLEL_INV), d >= vec3(0.0));
+    return select(1.0 / d, s, abs(d) < vec3(tiny));
 }
 
 // Conservative slab test (Ize, JCGT 2013): the exit distance is widened to cover the rounding of
@@ -266,8 +267,12 @@ const EXIT_WIDEN: f32 = 1.0000024;
 fn box_entry(lo: vec3<f32>, hi: vec3<f32>, org: vec3<f32>, inv: vec3<f32>, tmax: f32) -> f32 {
     let t0 = (lo - org) * inv;
     let t1 = (hi - org) * inv;
-    let tn = min(t0, t1);
-    let tf = max(t0, t1);
+    // A ray parallel to a slab and lying in one of its planes stays in the slab for every t, but
+    // 0 * inv gives 0 for that plane and would cut the interval at t = 0: such a ray would slip
+    // past a mesh edge or face it runs along. Inside the closed slab, the interval is unbounded.
+    let along = abs(inv) == vec3(PARALLEL_INV) & org >= lo & org <= hi;
+    let tn = select(min(t0, t1), vec3(-FAR), along);
+    let tf = select(max(t0, t1), vec3(FAR), along);
     let enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
     let exit = min(min(tf.x, tf.y), tf.z) * EXIT_WIDEN;
     return select(-1.0, enter, enter <= min(exit, tmax));
@@ -326,7 +331,8 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     if det == 0.0 {
         return -1.0;
     }
-    let tt = u * (sh.s.z * a[sh.k.z]) + v * (sh.s.z * b[sh.k.z]) + w * (sh.s.z * c[sh.k.z]);
+    let z = sh.s.z * vec3(a[sh.k.z], b[sh.k.z], c[sh.k.z]);
+    let tt = u * z.x + v * z.y + w * z.z;
     // Sign-aware: the hit is in front when tt and det agree in sign.
     let stt = select(tt, -tt, det < 0.0);
     if stt <= 0.0 {
@@ -336,7 +342,60 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     if t <= 0.0 || t >= tmax {
         return -1.0;
     }
+    // A hit closer than the rounding error of t may be behind the origin: a ray leaving a
+    // surface would hit it again (pbrt-v4's conservative t; a needle's error grows with its
+    // length over its width, beyond any origin offset).
+    let max_z = max(max(abs(z.x), abs(z.y)), abs(z.z));
+    let max_x = max(max(abs(a2.x), abs(b2.x)), abs(c2.x));
+    let max_y = max(max(abs(a2.y), abs(b2.y)), abs(c2.y));
+    let max_e = max(max(abs(u), abs(v)), abs(w));
+    let delta_x = gamma(5.0) * (max_x + max_z);
+    let delta_y = gamma(5.0) * (max_y + max_z);
+    let delta_z = gamma(3.0) * max_z;
+    let delta_e = 2.0 * (gamma(2.0) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    let delta_t = 3.0 * (gamma(3.0) * max_e * max_z + delta_e * max_z + delta_z * max_e) / abs(det);
+    if t <= delta_t {
+        return -1.0;
+    }
     return t;
+}
+
+// Bound on the relative rounding error of n correctly rounded f32 operations (pbrt's gamma).
+fn gamma(n: f32) -> f32 {
+    let u = 5.9604645e-8;  // 2^-24
+    return n * u / (1.0 - n * u);
+}
+
+// Whether a ray can be traced: finite origin, direction and tmax (checked on the bits: WGSL
+// implementations may assume no NaN or infinity, so IEEE comparisons cannot be trusted to find
+// them), a nonzero direction and a positive tmax. Other rays are misses.
+fn ray_valid(r: RayState) -> bool {
+    let e = (bitcast<vec3<u32>>(ray_origin(r)) >> vec3(23u)) & vec3(0xffu);
+    let f = (bitcast<vec3<u32>>(ray_dir(r)) >> vec3(23u)) & vec3(0xffu);
+    let g = (bitcast<u32>(r.t) >> 23u) & 0xffu;
+    let finite = all(e != vec3(0xffu)) && all(f != vec3(0xffu)) && g != 0xffu;
+    // Sign bits masked off: -0.0 is zero too.
+    let nonzero = any((bitcast<vec3<u32>>(ray_dir(r)) & vec3(0x7fffffffu)) != vec3(0u));
+    return finite && nonzero && r.t > 0.0;
+}
+
+fn max3(v: vec3<f32>) -> f32 {
+    return max(max(v.x, v.y), v.z);
+}
+
+// Unit geometric normal, normalize((v1 - v0) x (v2 - v0)), scaled before squaring: a plain
+// normalize loses the squares to denormals below ~1e-10 across (a normal that is not unit, or
+// NaN) and overflows above ~1e10 (a zero normal). A hit triangle has nonzero edges; if its
+// edges are parallel in f32 (a needle), any unit vector perpendicular to the first edge is
+// returned.
+fn unit_normal(tri: Tri) -> vec3<f32> {
+    let e1 = tri.v1 - tri.v0;
+    let e2 = tri.v2 - tri.v0;
+    let c = cross(e1 / max3(abs(e1)), e2 / max3(abs(e2)));
+    let m = max3(abs(c));
+    let p = select(vec3(0.0, -e1.z, e1.y), vec3(-e1.y, e1.x, 0.0), abs(e1.x) > abs(e1.z));
+    let n = select(p / max3(abs(p)), c / m, m > 0.0);
+    return normalize(n);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

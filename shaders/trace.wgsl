@@ -62,6 +62,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if gid.x < counter_in[0] && !parked {
         var r = rays[ray_index];
         r.wait_block = NONE;
+        // A ray with NaN, infinite or zero inputs ends at once as a miss, whoever made it.
+        let valid = ray_valid(r);
+        if !valid {
+            r.node = NONE;
+            r.sp = 0u;
+            r.hit = NONE;
+        }
         let org = ray_origin(r);
         let dir = ray_dir(r);
         let inv = safe_inverse(dir);
@@ -175,7 +182,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     if t > 0.0 {
                         r.t = t;
                         r.hit = cur.index + k;
-                        let n = normalize(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
+                        let n = unit_normal(tri);
                         r.nx = n.x;
                         r.ny = n.y;
                         r.nz = n.z;
@@ -191,6 +198,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 r.node = NONE;
                 have = false;
             }
+        }
+        if !valid {
+            r.status = OUTSIDE;
         }
         r.cur_index = cur.index;
         r.cur_count = select(NONE, cur.count, have && r.node != NONE);

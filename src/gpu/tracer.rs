@@ -7,7 +7,7 @@
 //! is live, `shade` writes the pixels.
 
 use super::Gpu;
-use super::layout::{Counter, FaultHeader, MeshInfo, Params, Pixel, RayState, Stats};
+use super::layout::{Counter, FaultHeader, MeshInfo, NONE, Params, Pixel, RayState, Stats, status};
 use super::shaders::{self, Store};
 use crate::blocks::Format;
 use crate::dc::source::BlockSource;
@@ -15,6 +15,7 @@ use crate::dc::trace::{Fault, FrameTrace, Round};
 use crate::dc::{CacheMap, Ranks, cache_line};
 use crate::error::{Error, Result};
 use crate::scene::CameraBasis;
+use crate::trace::cpu::Ray;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
@@ -26,8 +27,9 @@ const WORKGROUP: u32 = 64;
 pub const MAX_STEP_BUDGET: u32 = 60_000;
 pub const DEFAULT_STEP_BUDGET: u32 = 4096;
 /// Deeper BVHs than this get this many stack entries, and a ray that would overflow is reported
-/// as an error rather than traced wrongly.
-pub const MAX_STACK: u32 = 256;
+/// as an error rather than traced wrongly. 8 bytes an entry: a stack this deep still leaves room
+/// for 4096 rays a batch in a 128 MiB storage buffer.
+pub const MAX_STACK: u32 = 4096;
 const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
 const RAY_BYTES: u64 = std::mem::size_of::<RayState>() as u64;
 
@@ -128,6 +130,8 @@ struct Batch {
     args_bg: [wgpu::BindGroup; 2],
     shade_bg: wgpu::BindGroup,
     rays: wgpu::Buffer,
+    /// The first round's live list, which `trace_rays` fills.
+    live0: wgpu::Buffer,
 }
 
 pub struct Tracer<'g> {
@@ -144,6 +148,8 @@ pub struct Tracer<'g> {
     format: Format,
     dc: Option<Dc>,
     frame_start: Instant,
+    /// The BVH depth the model declared (the stack holds `min(depth, MAX_STACK)` entries).
+    depth: u32,
 }
 
 /// A rectangle of the image in pixels: what one `render_rect` call traces.
@@ -761,6 +767,7 @@ impl<'g> Tracer<'g> {
             format,
             dc,
             frame_start: Instant::now(),
+            depth: model.depth,
         })
     }
 
@@ -789,10 +796,16 @@ impl<'g> Tracer<'g> {
         }
         let n = u64::from(rays_cap);
         use wgpu::BufferUsages as U;
-        let rays_buf = buffer(gpu, "rays", n * RAY_BYTES, U::STORAGE | U::COPY_SRC);
+        // COPY_DST: `trace_rays` uploads its rays and live list directly.
+        let rays_buf = buffer(
+            gpu,
+            "rays",
+            n * RAY_BYTES,
+            U::STORAGE | U::COPY_SRC | U::COPY_DST,
+        );
         let stacks = buffer(gpu, "stacks", n * u64::from(stack_size) * 8, U::STORAGE);
         let live = [
-            buffer(gpu, "live0", n * 4, U::STORAGE),
+            buffer(gpu, "live0", n * 4, U::STORAGE | U::COPY_DST),
             buffer(gpu, "live1", n * 4, U::STORAGE),
         ];
         let counter_usage = U::STORAGE | U::INDIRECT | U::COPY_SRC | U::COPY_DST;
@@ -863,6 +876,7 @@ impl<'g> Tracer<'g> {
             args_bg,
             shade_bg,
             rays: rays_buf,
+            live0: live[0].clone(),
         })
     }
 
@@ -1044,6 +1058,13 @@ impl<'g> Tracer<'g> {
             let one = Dispatch::Direct(1);
             self.dispatch(&mut enc, &self.kernels.args, &b.args_bg[0], one);
         }
+        self.run_rounds(enc, stats)
+    }
+
+    /// Trace rounds until no ray is live, starting from the live list and counter 0 that `enc`
+    /// has already prepared (with the first `args` dispatch recorded).
+    fn run_rounds(&mut self, mut enc: wgpu::CommandEncoder, stats: &mut FrameStats) -> Result<()> {
+        let gpu = self.gpu;
         // `cur` is the counter holding the live rays of the next round. With a cache, faults are
         // served after every round; without, several rounds go in one submission.
         let mut cur = 0usize;
@@ -1088,8 +1109,8 @@ impl<'g> Tracer<'g> {
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
-                     stack",
-                    s.overflows, self.params.stack_size
+                     stack (the model declares depth {}, the stack holds at most {MAX_STACK})",
+                    s.overflows, self.params.stack_size, self.depth
                 )));
             }
             enc = gpu.device.create_command_encoder(&Default::default());
@@ -1305,7 +1326,87 @@ impl<'g> Tracer<'g> {
             .read_buffer(&self.batch.rays, 0, u64::from(n) * RAY_BYTES)?;
         Ok(bytemuck::pod_collect_to_vec(&data))
     }
+
+    /// Traces arbitrary rays (tests, tools, secondary rays from the host) through the same trace
+    /// kernel and round loop as rendering, in batches of at most `batch_rays()` rays; returns
+    /// each ray's closest hit with `t` in `(0, tmax)`, in units of the direction's length.
+    ///
+    /// A ray with a NaN or infinite origin or direction component, a zero direction, or a `tmax`
+    /// that is NaN or not positive is a miss (the trace kernel checks, so rays made on the GPU
+    /// get the same treatment). `tmax = +inf` means no limit (the kernel's `FAR`, 3e38).
+    pub fn trace_rays(&mut self, rays: &[Ray]) -> Result<Vec<Option<RayHit>>> {
+        let mut out = Vec::with_capacity(rays.len());
+        let mut stats = FrameStats::default();
+        for chunk in rays.chunks(self.batch.rays_cap as usize) {
+            let n = chunk.len() as u32;
+            let states: Vec<RayState> = chunk
+                .iter()
+                .map(|r| RayState {
+                    origin: r.origin,
+                    t: if r.tmax == f32::INFINITY { FAR } else { r.tmax },
+                    dir: r.dir,
+                    hit: NONE,
+                    cur_index: NONE,
+                    cur_count: NONE,
+                    prim: NONE,
+                    wait_block: NONE,
+                    ..RayState::default()
+                })
+                .collect();
+            let live: Vec<u32> = (0..n).collect();
+            let gpu = self.gpu;
+            self.params.batch_rays = n;
+            gpu.queue
+                .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+            gpu.queue
+                .write_buffer(&self.batch.rays, 0, bytemuck::cast_slice(&states));
+            gpu.queue
+                .write_buffer(&self.batch.live0, 0, bytemuck::cast_slice(&live));
+            let counter = Counter {
+                count: n,
+                dispatch: [0; 3],
+            };
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            enc.clear_buffer(&self.batch.counters[1], 0, None);
+            enc.clear_buffer(&self.batch.stats, 0, None);
+            self.clear_faults(&mut enc);
+            gpu.queue
+                .write_buffer(&self.batch.counters[0], 0, bytemuck::bytes_of(&counter));
+            let b = &self.batch;
+            self.dispatch(
+                &mut enc,
+                &self.kernels.args,
+                &b.args_bg[0],
+                Dispatch::Direct(1),
+            );
+            self.run_rounds(enc, &mut stats)?;
+            stats.batches += 1;
+            out.extend(self.read_rays(n)?.into_iter().map(|r| {
+                (r.status == status::DONE && r.hit != NONE).then_some(RayHit {
+                    t: r.t,
+                    prim: r.prim,
+                    normal: r.normal,
+                })
+            }));
+        }
+        Ok(out)
+    }
 }
+
+/// The closest hit of a ray traced by [`Tracer::trace_rays`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayHit {
+    /// Ray parameter of the hit, in units of the direction's length.
+    pub t: f32,
+    /// Primitive id (input order).
+    pub prim: u32,
+    /// Unit geometric normal `normalize((v1 - v0) x (v2 - v0))`.
+    pub normal: [f32; 3],
+}
+
+/// The trace kernel's initial `tmax` (`FAR` in `shaders/common.wgsl`): finite, because WGSL
+/// promises nothing for infinities.
+pub const FAR: f32 = 3.0e38;
 
 enum Dispatch<'a> {
     Direct(u32),

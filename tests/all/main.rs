@@ -8,5 +8,6 @@ mod common;
 mod dc;
 mod gpu_vs_cpu;
 mod layout;
+mod robust;
 mod shaders;
 mod trace_loop;
