@@ -385,7 +385,7 @@ struct ShadeParams {
     offset_mode: u32,    // 0: integer-ulp offset along the normal, 1: fixed epsilon
     epsilon: f32,
     ambient: f32,        // shadows: ambient term
-    pad0: u32,
+    any_hit: u32,        // RayState.flags of shadow and occlusion rays (ANY_HIT, or 0)
     pad1: u32,
     lights: array<Light, 4>,
 }

@@ -74,7 +74,7 @@ fn main() {
     put4(s.sky); put4(s.sun_dir); put4(s.sun);
     put(s.mode); put(s.fan); put(s.ao_rays); putf(s.ao_distance);
     put(s.max_depth); put(s.rr_depth); put(s.light_count); put(s.offset_mode);
-    putf(s.epsilon); putf(s.ambient); put(s.pad0); put(s.pad1);
+    putf(s.epsilon); putf(s.ambient); put(s.any_hit); put(s.pad1);
     for (var i = 0u; i < 4u; i++) {
         put4(s.lights[i].pos);
         put4(s.lights[i].color);

@@ -37,7 +37,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let n = path.n;
             var dir = n;
             var tmax = FAR;
-            var flags = ANY_HIT;
+            var flags = shading.any_hit;
             var go = true;
             if MODE == MODE_SHADOWS {
                 let l = shading.lights[k];

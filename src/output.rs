@@ -42,7 +42,10 @@ pub fn to_rgb8_exposed(frame: &Frame, exposure: f32) -> image::RgbImage {
     let mut img = image::RgbImage::new(frame.width, frame.height);
     for (p, out) in frame.pixels.iter().zip(img.pixels_mut()) {
         // Exposure 0 leaves the values untouched (no multiply), so PNGs stay as they were.
-        *out = image::Rgb(p.rgb.map(|c| srgb8(if exposure == 0.0 { c } else { c * k })));
+        *out = image::Rgb(
+            p.rgb
+                .map(|c| srgb8(if exposure == 0.0 { c } else { c * k })),
+        );
     }
     img
 }

@@ -50,8 +50,14 @@ impl Mode {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Light {
     /// `dir`: the direction the light travels.
-    Directional { dir: [f32; 3], color: [f32; 3] },
-    Point { pos: [f32; 3], color: [f32; 3] },
+    Directional {
+        dir: [f32; 3],
+        color: [f32; 3],
+    },
+    Point {
+        pos: [f32; 3],
+        color: [f32; 3],
+    },
 }
 
 /// How secondary rays leave a surface.
@@ -193,9 +199,7 @@ impl Shading {
         if let Offset::Epsilon(e) = self.offset
             && !(e.is_finite() && e >= 0.0)
         {
-            return bad(format!(
-                "epsilon must be finite and non-negative, got {e}"
-            ));
+            return bad(format!("epsilon must be finite and non-negative, got {e}"));
         }
         for (i, l) in self.lights.iter().flatten().enumerate() {
             match *l {
@@ -293,6 +297,11 @@ impl Shading {
             max_depth: self.max_depth,
             rr_depth: self.rr_depth,
             ambient: self.ambient,
+            any_hit: if self.any_hit {
+                layout::flags::ANY_HIT
+            } else {
+                0
+            },
             ..ShadeParams::default()
         };
         let sun_to = match self.sun_dir.and_then(unit) {
@@ -404,7 +413,11 @@ mod tests {
 
     #[test]
     fn offset_moves_along_the_normal() {
-        for p in [[1.0f32, -2.0, 3.0e5], [0.001, -0.001, 0.0], [-7.0e6, 1.0e-3, 5.0]] {
+        for p in [
+            [1.0f32, -2.0, 3.0e5],
+            [0.001, -0.001, 0.0],
+            [-7.0e6, 1.0e-3, 5.0],
+        ] {
             let n = [0.0f32, 0.6, 0.8];
             let q = offset_ray(p, n);
             assert_eq!(q[0], p[0], "a zero normal component moves nothing");

@@ -189,7 +189,9 @@ pub struct ShadeParams {
     pub offset_mode: u32,
     pub epsilon: f32,
     pub ambient: f32,
-    pub pad: [u32; 2],
+    /// `flags::ANY_HIT` when shadow and occlusion rays stop at any hit, else 0.
+    pub any_hit: u32,
+    pub pad: u32,
     pub lights: [Light; MAX_LIGHTS],
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 224);

@@ -841,7 +841,8 @@ impl<'g> Tracer<'g> {
         shading.validate()?;
         if shading.mode != self.settings.shading.mode {
             let st = self.settings.store;
-            self.kernels = build_kernels(self.gpu, st, &self.constants, &self.layouts, shading.mode);
+            self.kernels =
+                build_kernels(self.gpu, st, &self.constants, &self.layouts, shading.mode);
         }
         self.settings.shading = shading;
         Ok(())
@@ -1182,7 +1183,8 @@ impl<'g> Tracer<'g> {
             self.clear_faults(&mut enc);
             match (gen_, &self.kernels.spawn) {
                 (Gen::Secondary { fan }, Some(spawn)) => {
-                    let groups = Dispatch::Direct((self.params.batch_rays * fan).div_ceil(WORKGROUP));
+                    let groups =
+                        Dispatch::Direct((self.params.batch_rays * fan).div_ceil(WORKGROUP));
                     self.dispatch(&mut enc, spawn, &b.shade_bg, groups);
                 }
                 _ => {

@@ -69,7 +69,10 @@ enum LightKind {
     Point,
 }
 
-fn shading_of(render: Option<RenderSpec>, lights: &[LightSpec]) -> std::result::Result<crate::shading::Shading, String> {
+fn shading_of(
+    render: Option<RenderSpec>,
+    lights: &[LightSpec],
+) -> std::result::Result<crate::shading::Shading, String> {
     use crate::shading::{Light, Shading};
     let r = render.unwrap_or_default();
     let d = Shading::default();
@@ -95,7 +98,9 @@ fn shading_of(render: Option<RenderSpec>, lights: &[LightSpec]) -> std::result::
             (LightKind::Directional, Some(dir), None) => Light::Directional { dir, color },
             (LightKind::Point, None, Some(pos)) => Light::Point { pos, color },
             (LightKind::Directional, _, _) => {
-                return Err(at("a directional light needs `direction` (and no `position`)"));
+                return Err(at(
+                    "a directional light needs `direction` (and no `position`)",
+                ));
             }
             (LightKind::Point, _, _) => {
                 return Err(at("a point light needs `position` (and no `direction`)"));
@@ -103,7 +108,8 @@ fn shading_of(render: Option<RenderSpec>, lights: &[LightSpec]) -> std::result::
         };
         s.add_light(light).map_err(|e| at(&e.to_string()))?;
     }
-    s.validate().map_err(|e| format!("[render]/[[light]]: {e}"))?;
+    s.validate()
+        .map_err(|e| format!("[render]/[[light]]: {e}"))?;
     Ok(s)
 }
 

@@ -72,7 +72,8 @@ fn every_member_reads_back_through_the_shader() {
         offset_mode: 208,
         epsilon: 209.5,
         ambient: 210.5,
-        pad: [211, 212],
+        any_hit: 211,
+        pad: 212,
         lights: std::array::from_fn(|i| Light {
             pos: g(10 + 2 * i as u32),
             color: g(11 + 2 * i as u32),

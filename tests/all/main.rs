@@ -8,4 +8,5 @@ mod dc;
 mod gpu_vs_cpu;
 mod layout;
 mod shaders;
+mod shading;
 mod trace_loop;
