@@ -14,6 +14,8 @@ use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 use dcrt::shading::{Mode, Offset, Shading};
 use std::path::{Path, PathBuf};
+
+mod bench_shading;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -237,6 +239,16 @@ struct BenchArgs {
     rank: u32,
     #[arg(long, default_value_t = 4)]
     frames: u32,
+    /// Time against error of AO and path tracing on the rm and assembly generators (small
+    /// images: --width/--height default to 32 here), and the cost and error of accuracy knobs.
+    #[arg(long)]
+    shading: bool,
+    /// --shading: the largest spp of the curve.
+    #[arg(long, default_value_t = 32)]
+    max_spp: u32,
+    /// --shading: also draw the curves into this PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,
@@ -535,6 +547,26 @@ fn bench(a: BenchArgs) -> Result<()> {
     }
     check_image_size(a.width, a.height)?;
     check_budget(a.gpu.step_budget)?;
+    if a.shading {
+        if a.max_spp == 0 {
+            bail!("--max-spp must be at least 1");
+        }
+        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+        let small = |v: u32| if v == 1024 { 32 } else { v };
+        let args = bench_shading::Args {
+            width: small(a.width),
+            height: small(a.height),
+            triangles: if a.triangles == 1_000_000 {
+                50_000
+            } else {
+                a.triangles
+            },
+            max_spp: a.max_spp,
+            json: a.json,
+            plot: a.plot.as_deref(),
+        };
+        return bench_shading::run(&gpu, &args);
+    }
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,
         None => {

@@ -388,6 +388,17 @@ impl Default for Bounds {
 }
 
 impl Bounds {
+    /// Length of the box's diagonal (0 when empty).
+    pub fn diagonal(&self) -> f64 {
+        if self.is_empty() {
+            return 0.0;
+        }
+        (0..3)
+            .map(|a| (f64::from(self.max[a]) - f64::from(self.min[a])).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+
     pub fn grow(&mut self, p: [f32; 3]) {
         for (a, v) in p.into_iter().enumerate() {
             self.min[a] = self.min[a].min(v);
