@@ -159,7 +159,7 @@ impl Shading {
                 self.ao_rays
             ));
         }
-        if !(self.ao_distance > 0.0) {
+        if self.ao_distance.is_nan() || self.ao_distance <= 0.0 {
             return bad(format!(
                 "ao distance must be positive, got {}",
                 self.ao_distance
