@@ -48,7 +48,18 @@ struct Params {
     pad1: u32,
     pad2: u32,
     pad3: u32,
+    // Sampling: the sample index of this pass (the sampler's index), the seed, flags (JITTER,
+    // CULL, FIRST_SAMPLE) and the samples per pixel of the render.
+    sample: u32,
+    seed: u32,
+    flags: u32,
+    spp: u32,
 }
+
+// Params.flags
+const JITTER: u32 = 1u;        // jitter primary rays in the pixel (spp > 1)
+const CULL: u32 = 2u;          // primary rays that miss the root box skip traversal
+const FIRST_SAMPLE: u32 = 4u;  // the first pass of a render: the shade kernel resets pixels
 
 // Fixed for a model: pipeline constants, so that the driver turns the divisions of block
 // addressing into multiplies and shifts (CPU drivers otherwise divide lane by lane).
@@ -77,8 +88,11 @@ struct RayState {
     nx: f32, ny: f32, nz: f32,
     // The block this ray suspended on, or NONE: until it arrives the ray only renews its request.
     wait_block: u32,
-    pad: u32,
+    flags: u32,   // ANY_HIT
 }
+
+// RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
+const ANY_HIT: u32 = 1u;
 
 // Mirrors gpu::layout::MeshInfo.
 struct MeshInfo {
@@ -404,4 +418,117 @@ fn ray_origin(r: RayState) -> vec3<f32> {
 
 fn ray_dir(r: RayState) -> vec3<f32> {
     return vec3(r.dx, r.dy, r.dz);
+}
+
+// --- Shading (shade, spawn and gather kernels).
+
+// Mirrors gpu::layout::Light. pos.w: 0 directional (xyz: unit direction towards the light),
+// 1 point (xyz: position); color: the light's scale (irradiance at unit distance for a point).
+struct Light {
+    pos: vec4<f32>,
+    color: vec4<f32>,
+}
+
+// Mirrors gpu::layout::ShadeParams.
+struct ShadeParams {
+    sky: vec4<f32>,      // path: constant sky radiance
+    sun_dir: vec4<f32>,  // path: unit direction towards the sun
+    sun: vec4<f32>,      // path: sun irradiance; w 1 when the sun is on (next-event rays)
+    mode: u32,
+    fan: u32,            // secondary rays per pixel in one wave
+    ao_rays: u32,
+    ao_distance: f32,
+    max_depth: u32,
+    rr_depth: u32,       // Russian roulette from this bounce on
+    light_count: u32,
+    offset_mode: u32,    // 0: integer-ulp offset along the normal, 1: fixed epsilon
+    epsilon: f32,
+    ambient: f32,        // shadows: ambient term
+    any_hit: u32,        // RayState.flags of shadow and occlusion rays (ANY_HIT, or 0)
+    pad1: u32,
+    lights: array<Light, 4>,
+}
+
+const MODE_CAST: u32 = 0u;
+const MODE_SHADOWS: u32 = 1u;
+const MODE_AO: u32 = 2u;
+const MODE_PATH: u32 = 3u;
+// The pipeline's shading mode: each mode compiles only its own code.
+override MODE: u32 = 0u;
+
+const PI: f32 = 3.14159265358979;
+
+// Per-pixel state of a sample between waves of secondary rays (GPU only).
+struct Path {
+    pos: vec3<f32>,
+    alive: u32,
+    n: vec3<f32>,      // geometric normal facing the incoming ray
+    depth: u32,        // bounces so far
+    albedo: vec3<f32>,
+    pixel: u32,        // y * width + x: keys the sampler
+    tp: vec3<f32>,     // path throughput
+    pad0: u32,
+    l: vec3<f32>,      // radiance gathered so far
+    pad1: u32,
+}
+
+// lowbias32 (C. Wellons): mirrored by shading::hash on the CPU.
+fn hash(x: u32) -> u32 {
+    var v = x;
+    v ^= v >> 16u;
+    v *= 0x7feb352du;
+    v ^= v >> 15u;
+    v *= 0x846ca68bu;
+    v ^= v >> 16u;
+    return v;
+}
+
+// The sampler: the R2 sequence (Roberts 2018) in 32-bit fixed point, rotated per pixel and
+// dimension pair by a hash (Cranley-Patterson). Integer arithmetic only, so the CPU computes the
+// same bits (shading::sample2).
+fn sample2(pixel: u32, dim: u32, index: u32) -> vec2<f32> {
+    let h = hash(pixel ^ hash(dim * 0x9e3779b9u + params.seed));
+    let x = hash(h) + index * 3242174889u;
+    let y = hash(h ^ 0x68bc21ebu) + index * 2447445414u;
+    return vec2(f32(x >> 8u), f32(y >> 8u)) * (1.0 / 16777216.0);
+}
+
+// Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems,
+// ch. 6): move p along n by a number of ulps per component (a relative offset), and by a fixed
+// amount near the origin where ulps are tiny. Mirrored by shading::offset_ray.
+const OFFSET_ORIGIN: f32 = 0.03125;
+const OFFSET_FLOAT_SCALE: f32 = 1.52587890625e-05;  // 1 / 65536
+const OFFSET_INT_SCALE: f32 = 256.0;
+fn offset_ray(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let of_i = vec3<i32>(OFFSET_INT_SCALE * n);
+    let p_i = bitcast<vec3<f32>>(bitcast<vec3<i32>>(p) + select(of_i, -of_i, p < vec3(0.0)));
+    return select(p_i, p + OFFSET_FLOAT_SCALE * n, abs(p) < vec3(OFFSET_ORIGIN));
+}
+
+// Cosine-weighted direction about unit n from u in [0,1)^2, with the branchless orthonormal
+// basis of Duff et al. (JCGT 2017).
+fn cosine_dir(n: vec3<f32>, u: vec2<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    let t = vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+    let bt = vec3(b, s + n.y * n.y * a, -n.y);
+    let r = sqrt(u.x);
+    let phi = 2.0 * PI * u.y;
+    return normalize(r * cos(phi) * t + r * sin(phi) * bt + sqrt(max(0.0, 1.0 - u.x)) * n);
+}
+
+fn mesh_of(prim: u32) -> u32 {
+    // Last mesh whose first primitive is <= prim.
+    var lo = 0u;
+    var hi = params.mesh_count;
+    while hi - lo > 1u {
+        let mid = (lo + hi) / 2u;
+        if meshes[mid].first_prim <= prim {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo;
 }

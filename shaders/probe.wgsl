@@ -1,10 +1,11 @@
 // Layout probe (tests only): one invocation reads every member of every host-written struct
 // through the same accessors the kernels use and writes it out as raw words, in declaration
 // order, so the host can compare each member with what it wrote. `params.pad0` nodes,
-// `params.pad1` triangles, two ray states and `params.mesh_count` meshes are probed.
+// `params.pad1` triangles, two ray states, `params.mesh_count` meshes and the shading parameters are probed.
 
 @group(1) @binding(0) var<storage, read> probe_rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> out: array<u32>;
+@group(1) @binding(2) var<storage, read> probe_shading: ShadeParams;
 
 var<private> at: u32 = 0u;
 
@@ -39,6 +40,7 @@ fn main() {
     put(p.dc_cache_row); put(p.dc_root_row); put(p.dc_fault_cap);
     put(p.rect_x); put(p.rect_y); put(p.rect_w); put(p.rect_h);
     put(p.pad0); put(p.pad1); put(p.pad2); put(p.pad3);
+    put(p.sample); put(p.seed); put(p.flags); put(p.spp);
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);
         let n = node_at(locate(l.x), l.y);
@@ -61,11 +63,20 @@ fn main() {
         put(r.node); put(r.sp); put(r.status); put(r.steps);
         put(r.cur_index); put(r.cur_count); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
-        put(r.wait_block); put(r.pad);
+        put(r.wait_block); put(r.flags);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];
         put4(m.color);
         put(m.first_prim); put(m.pad0); put(m.pad1); put(m.pad2);
+    }
+    let s = probe_shading;
+    put4(s.sky); put4(s.sun_dir); put4(s.sun);
+    put(s.mode); put(s.fan); put(s.ao_rays); putf(s.ao_distance);
+    put(s.max_depth); put(s.rr_depth); put(s.light_count); put(s.offset_mode);
+    putf(s.epsilon); putf(s.ambient); put(s.any_hit); put(s.pad1);
+    for (var i = 0u; i < 4u; i++) {
+        put4(s.lights[i].pos);
+        put4(s.lights[i].color);
     }
 }

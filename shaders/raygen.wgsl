@@ -1,5 +1,7 @@
 // Ray generation for one batch of 8x8 tiles: one invocation per ray, pixel centres exactly as
-// DESIGN.md section 7 defines them. Valid rays are appended to the live list.
+// DESIGN.md section 7 defines them (jittered by the sampler when JITTER is set). Valid rays are
+// appended to the live list; with CULL, a ray that misses the (padded) root box is done at once
+// and skips traversal: its result, a miss, is what traversal would give.
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> live_out: array<u32>;
@@ -14,6 +16,14 @@ fn finite3(v: vec3<f32>) -> bool {
     return all(e != vec3(0xffu));
 }
 
+// The root node's box, padded far beyond rounding: every child box a traversal could enter lies
+// inside it. The root block is resident on every rank, so this never faults.
+fn hits_root(o: vec3<f32>, d: vec3<f32>) -> bool {
+    let root = node_at(locate(0u), 0u);
+    let pad = (root.hi - root.lo) * 1e-3 + max(abs(root.lo), abs(root.hi)) * 1e-5;
+    return box_entry(root.lo - pad, root.hi + pad, o, safe_inverse(d), FAR) >= 0.0;
+}
+
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let i = gid.x;
@@ -26,14 +36,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let ly = (tile / params.tiles_x) * TILE + local / TILE;
         let px = params.rect_x + lx;
         let py = params.rect_y + ly;
-        let sx = 2.0 * (f32(px) + 0.5) / f32(params.width) - 1.0;
-        let sy = 1.0 - 2.0 * (f32(py) + 0.5) / f32(params.height);
+        var j = vec2(0.5, 0.5);
+        if (params.flags & JITTER) != 0u {
+            j = sample2(py * params.width + px, 0u, params.sample);
+        }
+        let sx = 2.0 * (f32(px) + j.x) / f32(params.width) - 1.0;
+        let sy = 1.0 - 2.0 * (f32(py) + j.y) / f32(params.height);
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
         var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u, 0u, NONE, NONE,
                          0.0, 0.0, 0.0, NONE, 0u);
         if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
+        } else if (params.flags & CULL) != 0u && !hits_root(o, d) {
+            r.status = DONE;
         } else {
             live = true;
         }

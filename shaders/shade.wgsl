@@ -1,26 +1,16 @@
-// Shading of one batch: headlight Lambert times the mesh colour, plus the AOVs of the EXR
-// contract (depth along the normalized ray, primitive id, unit geometric normal).
+// The primary hits of one pass over a batch (one invocation per pixel slot). In `cast` mode:
+// headlight Lambert times the mesh colour. In the other modes: the sample's path starts here
+// (spawn and gather follow). The first pass of a render also writes the AOVs of the EXR contract
+// (depth along the normalized ray, primitive id, unit geometric normal). Colours are summed over
+// passes; the host divides by the sample count.
 
-@group(1) @binding(0) var<storage, read> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
+@group(1) @binding(2) var<storage, read_write> paths: array<Path>;
+@group(1) @binding(3) var<storage, read> shading: ShadeParams;
 
 const AMBIENT: f32 = 0.15;
 const POS_INF: u32 = 0x7f800000u;
-
-fn mesh_of(prim: u32) -> u32 {
-    // Last mesh whose first primitive is <= prim.
-    var lo = 0u;
-    var hi = params.mesh_count;
-    while hi - lo > 1u {
-        let mid = (lo + hi) / 2u;
-        if meshes[mid].first_prim <= prim {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    return lo;
-}
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -29,13 +19,51 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let r = rays[i];
-    var p = Pixel(params.background.x, params.background.y, params.background.z,
-                  POS_INF, NONE, 0.0, 0.0, 0.0);
-    if r.hit != NONE && r.status == DONE {
-        let n = vec3(r.nx, r.ny, r.nz);
-        let prim = r.prim;
-        let c = meshes[mesh_of(prim)].color.xyz * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, ray_dir(r))));
-        p = Pixel(c.x, c.y, c.z, bitcast<u32>(r.t), prim, n.x, n.y, n.z);
+    let hit = r.hit != NONE && r.status == DONE;
+    var p = pixels[i];
+    if (params.flags & FIRST_SAMPLE) != 0u {
+        p = Pixel(0.0, 0.0, 0.0, POS_INF, NONE, 0.0, 0.0, 0.0);
+        if hit {
+            p = Pixel(0.0, 0.0, 0.0, bitcast<u32>(r.t), r.prim, r.nx, r.ny, r.nz);
+        }
     }
+    var c = params.background.xyz;
+    if MODE == MODE_PATH {
+        c = shading.sky.xyz;
+    }
+    if hit {
+        let n = vec3(r.nx, r.ny, r.nz);
+        let d = ray_dir(r);
+        let albedo = meshes[mesh_of(r.prim)].color.xyz;
+        if MODE == MODE_CAST {
+            c = albedo * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, d)));
+        } else {
+            var path: Path;
+            path.pos = ray_origin(r) + r.t * d;
+            path.n = select(n, -n, dot(n, d) > 0.0);
+            path.alive = 1u;
+            path.depth = 0u;
+            path.albedo = albedo;
+            let tile = params.first_tile + i / (TILE * TILE);
+            let local = i % (TILE * TILE);
+            let px = params.rect_x + (tile % params.tiles_x) * TILE + local % TILE;
+            let py = params.rect_y + (tile / params.tiles_x) * TILE + local / TILE;
+            path.pixel = py * params.width + px;
+            path.tp = vec3(1.0);
+            path.l = vec3(0.0);
+            if MODE == MODE_SHADOWS {
+                path.l = albedo * shading.ambient;
+                // Without lights there is no shadow ray to wait for.
+                path.alive = u32(shading.light_count > 0u);
+            }
+            c = select(path.l, vec3(0.0), path.alive != 0u);
+            paths[i] = path;
+        }
+    } else if MODE != MODE_CAST {
+        paths[i].alive = 0u;
+    }
+    p.r += c.x;
+    p.g += c.y;
+    p.b += c.z;
     pixels[i] = p;
 }

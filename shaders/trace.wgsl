@@ -168,6 +168,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 // (with one cache line it would evict the second).
                 iters += 1u + cur.count;
                 var rest = 0u;
+                var stop = false;
                 for (var k = 0u; k < cur.count; k++) {
                     let l = tri_loc(cur.index + k);
                     let row = locate(l.x);
@@ -187,7 +188,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.ny = n.y;
                         r.nz = n.z;
                         r.prim = prim_id_at(row, l.y);
+                        // Shadow and occlusion rays need any hit, not the closest.
+                        if (r.flags & ANY_HIT) != 0u {
+                            stop = true;
+                            break;
+                        }
                     }
+                }
+                if stop {
+                    r.status = DONE;
+                    r.node = NONE;
+                    r.sp = 0u;
+                    have = false;
+                    break;
                 }
                 if rest > 0u {
                     cur.index += cur.count - rest;

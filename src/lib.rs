@@ -15,6 +15,7 @@ pub mod gpu;
 pub mod output;
 pub mod render;
 pub mod scene;
+pub mod shading;
 pub mod trace;
 
 pub use error::{Error, Result};

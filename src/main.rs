@@ -12,7 +12,10 @@ use dcrt::output::{self, Aov};
 use dcrt::render::{DcOptions, Loaded, Prepared, render_frame};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
+use dcrt::shading::{Mode, Offset, Shading};
 use std::path::{Path, PathBuf};
+
+mod bench_shading;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -74,6 +77,66 @@ struct GpuArgs {
     store: Store,
 }
 
+/// Shading options; each overrides the scene's `[render]` value when given.
+#[derive(Args, Clone, Default)]
+struct ShadeArgs {
+    /// Shading mode.
+    #[arg(long, value_enum)]
+    mode: Option<Mode>,
+    /// Samples per pixel (accumulated; 1 traces pixel centres).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Sampler seed: the same seed gives the same bits.
+    #[arg(long)]
+    seed: Option<u32>,
+    /// Ambient occlusion rays per hit (default 36).
+    #[arg(long)]
+    ao_rays: Option<u32>,
+    /// Ambient occlusion distance (default: unbounded).
+    #[arg(long)]
+    ao_distance: Option<f32>,
+    /// Path tracing: most bounces.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Offset secondary-ray origins by this fixed distance instead of integer ulps (for
+    /// comparison).
+    #[arg(long)]
+    epsilon: Option<f32>,
+    /// Shadow and occlusion rays find the closest hit instead of stopping at any (for
+    /// comparison).
+    #[arg(long)]
+    closest_hit_shadows: bool,
+    /// Trace primary rays that miss the model's box too (for comparison).
+    #[arg(long)]
+    no_cull: bool,
+}
+
+impl ShadeArgs {
+    fn apply(&self, base: Shading) -> Result<Shading> {
+        let mut s = base;
+        s.mode = self.mode.unwrap_or(s.mode);
+        s.spp = self.spp.unwrap_or(s.spp);
+        s.seed = self.seed.unwrap_or(s.seed);
+        s.ao_rays = self.ao_rays.unwrap_or(s.ao_rays);
+        s.ao_distance = self.ao_distance.unwrap_or(s.ao_distance);
+        s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        if let Some(e) = self.epsilon {
+            s.offset = Offset::Epsilon(e);
+        }
+        s.any_hit &= !self.closest_hit_shadows;
+        s.cull &= !self.no_cull;
+        s.validate().map_err(|e| {
+            anyhow::anyhow!(
+                "{}",
+                e.to_string()
+                    .replace("spp must", "--spp must")
+                    .replace("ao rays", "--ao-rays")
+            )
+        })?;
+        Ok(s)
+    }
+}
+
 #[derive(Args)]
 struct RenderArgs {
     /// Scene file (TOML) or prepared block file (.dcb).
@@ -98,6 +161,11 @@ struct RenderArgs {
     /// Write each frame's fault/fetch trace (JSON Lines) into this directory.
     #[arg(long)]
     trace: Option<PathBuf>,
+    /// PNG exposure in stops (the EXR stays linear).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    exposure: f32,
+    #[command(flatten)]
+    shade: ShadeArgs,
     #[command(flatten)]
     gpu: GpuArgs,
     #[command(flatten)]
@@ -201,6 +269,16 @@ struct BenchArgs {
     rank: u32,
     #[arg(long, default_value_t = 4)]
     frames: u32,
+    /// Time against error of AO and path tracing on the rm and assembly generators (small
+    /// images: --width/--height default to 32 here), and the cost and error of accuracy knobs.
+    #[arg(long)]
+    shading: bool,
+    /// --shading: the largest spp of the curve.
+    #[arg(long, default_value_t = 32)]
+    max_spp: u32,
+    /// --shading: also draw the curves into this PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,
@@ -270,6 +348,11 @@ fn render(a: RenderArgs) -> Result<()> {
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
+    if !a.exposure.is_finite() {
+        bail!("--exposure must be finite, got {}", a.exposure);
+    }
+    // Options are checked before the scene is loaded.
+    a.shade.apply(Shading::default())?;
     for out in std::iter::once(&a.output).chain(a.exr.as_ref()) {
         check_writable(out)?;
     }
@@ -294,7 +377,12 @@ fn render(a: RenderArgs) -> Result<()> {
     check_image_size(width, height)?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
-    let mut tracer = loaded.tracer(&gpu, settings(&a.gpu), dc.as_ref())?;
+    let shading = a.shade.apply(loaded.shading)?;
+    let s = Settings {
+        shading,
+        ..settings(&a.gpu)
+    };
+    let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
     match &dc {
         Some(o) => {
             let m = o.memory(loaded.block_count(), loaded.format())?;
@@ -326,7 +414,7 @@ fn render(a: RenderArgs) -> Result<()> {
             serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": &stats}),
         );
         let png = numbered(&a.output);
-        output::write_png(&png, &frame)?;
+        output::write_png_exposed(&png, &frame, a.exposure)?;
         if let Some(exr) = &a.exr {
             output::write_exr(&numbered(exr), &frame, &a.aov)?;
         }
@@ -345,7 +433,9 @@ fn render(a: RenderArgs) -> Result<()> {
             trace.write(dir)?;
         }
         eprintln!(
-            "frame {i}: {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+            "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+            shading.mode.name(),
+            shading.spp,
             loaded.triangles,
             loaded
                 .build_seconds
@@ -673,6 +763,26 @@ fn bench(a: BenchArgs) -> Result<()> {
     }
     check_image_size(a.width, a.height)?;
     check_budget(a.gpu.step_budget)?;
+    if a.shading {
+        if a.max_spp == 0 {
+            bail!("--max-spp must be at least 1");
+        }
+        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+        let small = |v: u32| if v == 1024 { 32 } else { v };
+        let args = bench_shading::Args {
+            width: small(a.width),
+            height: small(a.height),
+            triangles: if a.triangles == 1_000_000 {
+                50_000
+            } else {
+                a.triangles
+            },
+            max_spp: a.max_spp,
+            json: a.json,
+            plot: a.plot.as_deref(),
+        };
+        return bench_shading::run(&gpu, &args);
+    }
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,
         None => {

@@ -44,15 +44,30 @@ pub fn srgb8(linear: f32) -> u8 {
 }
 
 pub fn to_rgb8(frame: &Frame) -> image::RgbImage {
+    to_rgb8_exposed(frame, 0.0)
+}
+
+/// Linear colour times 2^exposure (stops), then sRGB.
+pub fn to_rgb8_exposed(frame: &Frame, exposure: f32) -> image::RgbImage {
+    let k = exposure.exp2();
     let mut img = image::RgbImage::new(frame.width, frame.height);
     for (p, out) in frame.pixels.iter().zip(img.pixels_mut()) {
-        *out = image::Rgb(p.rgb.map(srgb8));
+        // Exposure 0 leaves the values untouched (no multiply), so PNGs stay as they were.
+        *out = image::Rgb(
+            p.rgb
+                .map(|c| srgb8(if exposure == 0.0 { c } else { c * k })),
+        );
     }
     img
 }
 
 pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
-    save_png(path, &to_rgb8(frame))
+    write_png_exposed(path, frame, 0.0)
+}
+
+/// A PNG of the frame exposed by `exposure` stops.
+pub fn write_png_exposed(path: &Path, frame: &Frame, exposure: f32) -> Result<()> {
+    save_png(path, &to_rgb8_exposed(frame, exposure))
 }
 
 /// Writes an 8-bit sRGB image.

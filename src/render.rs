@@ -113,6 +113,8 @@ pub struct Loaded {
     pub width: u32,
     pub height: u32,
     pub background: [f32; 3],
+    /// The scene's shading settings (defaults for a bare block file).
+    pub shading: crate::shading::Shading,
     /// BVH build and layout time when built now.
     pub build_seconds: Option<f64>,
 }
@@ -139,6 +141,7 @@ impl Loaded {
             width: scene.width,
             height: scene.height,
             background: scene.background,
+            shading: scene.shading,
             build_seconds: Some((p.bvh.build_time + p.bvh.layout_time).as_secs_f64()),
             source: Source::Built(p.blocks),
         })
@@ -176,6 +179,7 @@ impl Loaded {
             width,
             height,
             background,
+            shading: scene.map(|s| s.shading).unwrap_or_default(),
             build_seconds: None,
             source: Source::File(Box::new(f)),
         })

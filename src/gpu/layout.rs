@@ -40,8 +40,26 @@ pub struct Params {
     pub pad1: u32,
     pub pad2: u32,
     pub pad3: u32,
+    /// The sampler's sample index of this pass, its seed, `flags::*` and the render's samples
+    /// per pixel.
+    pub sample: u32,
+    pub seed: u32,
+    pub flags: u32,
+    pub spp: u32,
 }
-const _: () = assert!(std::mem::size_of::<Params>() == 176);
+const _: () = assert!(std::mem::size_of::<Params>() == 192);
+
+/// `Params.flags` and `RayState.flags` values.
+pub mod flags {
+    /// Params: jitter primary rays in the pixel.
+    pub const JITTER: u32 = 1;
+    /// Params: primary rays that miss the root box skip traversal.
+    pub const CULL: u32 = 2;
+    /// Params: the first pass of a render (the shade kernel resets the pixels).
+    pub const FIRST_SAMPLE: u32 = 4;
+    /// RayState: stop at the first hit found.
+    pub const ANY_HIT: u32 = 1;
+}
 
 /// `RayState` in `shaders/common.wgsl`.
 #[repr(C)]
@@ -63,7 +81,8 @@ pub struct RayState {
     pub normal: [f32; 3],
     /// The block the ray suspended on, or `NONE`.
     pub wait_block: u32,
-    pub pad: u32,
+    /// `flags::ANY_HIT` for shadow and occlusion rays.
+    pub flags: u32,
 }
 const _: () = assert!(std::mem::size_of::<RayState>() == 80);
 
@@ -138,4 +157,45 @@ pub struct FaultHeader {
     pub pad: [u32; 2],
 }
 
+/// `Light` in `shaders/common.wgsl`. `pos[3]`: 0 directional (`pos` the unit direction towards
+/// the light), 1 point (`pos` its position).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Light {
+    pub pos: [f32; 4],
+    pub color: [f32; 4],
+}
+
+/// Lights a pipeline can take (the GPU array's length).
+pub const MAX_LIGHTS: usize = 4;
+
+/// `ShadeParams` in `shaders/common.wgsl`: what the shade, spawn and gather kernels read.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ShadeParams {
+    pub sky: [f32; 4],
+    pub sun_dir: [f32; 4],
+    /// Sun irradiance; `[3]` is 1 when the sun is on.
+    pub sun: [f32; 4],
+    pub mode: u32,
+    /// Secondary rays per pixel in one wave.
+    pub fan: u32,
+    pub ao_rays: u32,
+    pub ao_distance: f32,
+    pub max_depth: u32,
+    pub rr_depth: u32,
+    pub light_count: u32,
+    /// 0: integer-ulp offset along the normal; 1: fixed epsilon.
+    pub offset_mode: u32,
+    pub epsilon: f32,
+    pub ambient: f32,
+    /// `flags::ANY_HIT` when shadow and occlusion rays stop at any hit, else 0.
+    pub any_hit: u32,
+    pub pad: u32,
+    pub lights: [Light; MAX_LIGHTS],
+}
+const _: () = assert!(std::mem::size_of::<ShadeParams>() == 224);
+
 pub const NONE: u32 = u32::MAX;
+/// The kernels' finite stand-in for an unbounded ray (`FAR` in `shaders/common.wgsl`).
+pub const FAR: f32 = 3.0e38;

@@ -31,6 +31,8 @@ pub const KERNELS: &[(&str, &str)] = &[
     ("trace", include_str!("../../shaders/trace.wgsl")),
     ("args", include_str!("../../shaders/args.wgsl")),
     ("shade", include_str!("../../shaders/shade.wgsl")),
+    ("spawn", include_str!("../../shaders/spawn.wgsl")),
+    ("gather", include_str!("../../shaders/gather.wgsl")),
     ("probe", include_str!("../../shaders/probe.wgsl")),
 ];
 

@@ -7,7 +7,10 @@
 //! is live, `shade` writes the pixels.
 
 use super::Gpu;
-use super::layout::{Counter, FaultHeader, MeshInfo, NONE, Params, Pixel, RayState, Stats, status};
+use super::layout::{
+    Counter, FaultHeader, MeshInfo, NONE, Params, Pixel, RayState, ShadeParams, Stats, flags,
+    status,
+};
 use super::shaders::{self, Store};
 use crate::blocks::Format;
 use crate::dc::source::BlockSource;
@@ -15,6 +18,7 @@ use crate::dc::trace::{Fault, FrameTrace, Round};
 use crate::dc::{CacheMap, Ranks, cache_line};
 use crate::error::{Error, Result};
 use crate::scene::CameraBasis;
+use crate::shading::{Mode, Shading};
 use crate::trace::cpu::Ray;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
@@ -32,6 +36,9 @@ pub const DEFAULT_STEP_BUDGET: u32 = 4096;
 pub const MAX_STACK: u32 = 4096;
 const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
 const RAY_BYTES: u64 = std::mem::size_of::<RayState>() as u64;
+/// `Path` in `shaders/common.wgsl` (GPU only).
+const PATH_BYTES: u64 = 80;
+const SHADE_BYTES: u64 = std::mem::size_of::<ShadeParams>() as u64;
 
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
@@ -41,6 +48,8 @@ pub struct Settings {
     pub max_batch_rays: u32,
     /// Where the GPU keeps the blocks.
     pub store: Store,
+    /// Shading mode, samples, lights: the pipelines are built for this mode.
+    pub shading: Shading,
 }
 
 impl Default for Settings {
@@ -49,6 +58,7 @@ impl Default for Settings {
             step_budget: DEFAULT_STEP_BUDGET,
             max_batch_rays: DEFAULT_MAX_BATCH_RAYS,
             store: Store::Texture,
+            shading: Shading::default(),
         }
     }
 }
@@ -95,6 +105,11 @@ pub struct FrameStats {
     /// Inner-node visits and node-block entries (a visit in another block than the previous).
     pub node_visits: u64,
     pub block_entries: u64,
+    /// Samples per pixel traced; secondary rays spawned; rays that entered traversal (primary
+    /// rays culled by the model's box and rays not needed do not).
+    pub samples: u32,
+    pub secondary_rays: u64,
+    pub traced_rays: u64,
 }
 
 /// A traced frame: one `Pixel` per image pixel, row-major, y down.
@@ -111,6 +126,16 @@ struct Kernels {
     args: wgpu::ComputePipeline,
     shade: wgpu::ComputePipeline,
     probe: wgpu::ComputePipeline,
+    /// Secondary-ray waves: built only for modes that have them.
+    spawn: Option<wgpu::ComputePipeline>,
+    gather: Option<wgpu::ComputePipeline>,
+}
+
+/// What starts a batch's trace rounds: primary rays, or a wave of secondary rays.
+#[derive(Clone, Copy)]
+enum Gen {
+    Primary,
+    Secondary { fan: u32 },
 }
 
 /// Buffers sized for one batch, with the bind groups over them.
@@ -134,6 +159,9 @@ struct Batch {
     live0: wgpu::Buffer,
 }
 
+/// Pipeline constants fixed for a model (block addressing, DC).
+type Constants = Vec<(&'static str, f64)>;
+
 pub struct Tracer<'g> {
     gpu: &'g Gpu,
     kernels: Kernels,
@@ -150,6 +178,8 @@ pub struct Tracer<'g> {
     frame_start: Instant,
     /// The BVH depth the model declared (the stack holds `min(depth, MAX_STACK)` entries).
     depth: u32,
+    constants: Constants,
+    shade_buf: wgpu::Buffer,
 }
 
 /// A rectangle of the image in pixels: what one `render_rect` call traces.
@@ -257,7 +287,7 @@ impl Layouts {
             "raygen" => &self.raygen,
             "trace" => &self.trace,
             "args" => &self.args,
-            "shade" => &self.shade,
+            "shade" | "spawn" | "gather" => &self.shade,
             _ => &self.probe,
         }
     }
@@ -316,8 +346,23 @@ fn layouts(gpu: &Gpu, store: Store) -> Layouts {
             ],
         ),
         args: bgl(gpu, "args", &rw(2)),
-        shade: bgl(gpu, "shade", &[storage(0, true), storage(1, false)]),
-        probe: bgl(gpu, "probe", &[storage(0, true), storage(1, false)]),
+        shade: bgl(
+            gpu,
+            "shade",
+            &[
+                storage(0, false),
+                storage(1, false),
+                storage(2, false),
+                storage(3, true),
+                storage(4, false),
+                storage(5, false),
+            ],
+        ),
+        probe: bgl(
+            gpu,
+            "probe",
+            &[storage(0, true), storage(1, false), storage(2, true)],
+        ),
         scene,
     }
 }
@@ -355,6 +400,30 @@ fn pipeline(
             },
             cache: None,
         })
+}
+
+/// The pipelines of a shading mode: each carries only its mode's code (`MODE` is a pipeline
+/// constant), and modes without secondary rays get no spawn or gather pipeline.
+fn build_kernels(
+    gpu: &Gpu,
+    store: Store,
+    constants: &[(&'static str, f64)],
+    l: &Layouts,
+    mode: Mode,
+) -> Kernels {
+    let mut c = constants.to_vec();
+    c.push(("MODE", f64::from(mode as u32)));
+    let k = |name| pipeline(gpu, store, &c, name, &l.scene, l.for_kernel(name));
+    let waves = mode != Mode::Cast;
+    Kernels {
+        raygen: k("raygen"),
+        trace: k("trace"),
+        args: k("args"),
+        shade: k("shade"),
+        probe: k("probe"),
+        spawn: waves.then(|| k("spawn")),
+        gather: waves.then(|| k("gather")),
+    }
 }
 
 fn buffer(gpu: &Gpu, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
@@ -595,21 +664,15 @@ impl<'g> Tracer<'g> {
             }
             Store::Buffer => (BlockStore::Buffer(upload_buffer(gpu, &rows)?), 1),
         };
-        let constants = [
+        settings.shading.validate()?;
+        let constants: Constants = vec![
             ("DC", if dc.is_some() { 1.0 } else { 0.0 }),
             ("NODES_PER_BLOCK", f64::from(format.nodes_per_block())),
             ("TRIS_PER_BLOCK", f64::from(format.tris_per_block())),
             ("TEXELS_PER_BLOCK", f64::from(format.texels())),
             ("ROWS_PER_LAYER", f64::from(rows_per_layer)),
         ];
-        let k = |name| pipeline(gpu, st, &constants, name, &l.scene, l.for_kernel(name));
-        let kernels = Kernels {
-            raygen: k("raygen"),
-            trace: k("trace"),
-            args: k("args"),
-            shade: k("shade"),
-            probe: k("probe"),
-        };
+        let kernels = build_kernels(gpu, st, &constants, &l, settings.shading.mode);
         let meshes: Vec<MeshInfo> = model
             .meshes
             .colors
@@ -752,7 +815,15 @@ impl<'g> Tracer<'g> {
             layout: &l.scene,
             entries: &entries,
         });
-        let batch = Self::make_batch(gpu, &l, stack_size, settings.max_batch_rays, lines)?;
+        let shade_buf = buffer(gpu, "shading", SHADE_BYTES, U::STORAGE | U::COPY_DST);
+        let batch = Self::make_batch(
+            gpu,
+            &l,
+            stack_size,
+            settings.max_batch_rays,
+            lines,
+            &shade_buf,
+        )?;
         Ok(Tracer {
             gpu,
             kernels,
@@ -768,7 +839,21 @@ impl<'g> Tracer<'g> {
             dc,
             frame_start: Instant::now(),
             depth: model.depth,
+            constants,
+            shade_buf,
         })
+    }
+
+    /// Changes the shading settings; the pipelines are rebuilt when the mode changes.
+    pub fn set_shading(&mut self, shading: Shading) -> Result<()> {
+        shading.validate()?;
+        if shading.mode != self.settings.shading.mode {
+            let st = self.settings.store;
+            self.kernels =
+                build_kernels(self.gpu, st, &self.constants, &self.layouts, shading.mode);
+        }
+        self.settings.shading = shading;
+        Ok(())
     }
 
     /// Allocates per-batch buffers as large as the settings and the adapter's limits allow.
@@ -778,12 +863,13 @@ impl<'g> Tracer<'g> {
         stack_size: u32,
         max_rays: u32,
         lines: u32,
+        shade_buf: &wgpu::Buffer,
     ) -> Result<Batch> {
         let limit = gpu
             .limits
             .max_storage_buffer_binding_size
             .min(gpu.limits.max_buffer_size);
-        let per_ray_max = (u64::from(stack_size) * 8).max(RAY_BYTES);
+        let per_ray_max = (u64::from(stack_size) * 8).max(RAY_BYTES).max(PATH_BYTES);
         let by_memory = limit / per_ray_max;
         let by_dispatch = u64::from(gpu.limits.max_compute_workgroups_per_dimension) * 64;
         let rays = u64::from(max_rays).min(by_memory).min(by_dispatch);
@@ -815,7 +901,9 @@ impl<'g> Tracer<'g> {
         ];
         let stats = buffer(gpu, "stats", 48, U::STORAGE | U::COPY_SRC | U::COPY_DST);
         let pixels = buffer(gpu, "pixels", n * 32, U::STORAGE | U::COPY_SRC);
-        let readback = buffer(gpu, "readback", 80, U::MAP_READ | U::COPY_DST);
+        // Counter, stats, GPU timestamps, and the live count a batch's rounds started with.
+        let readback = buffer(gpu, "readback", 96, U::MAP_READ | U::COPY_DST);
+        let paths = buffer(gpu, "paths", n * PATH_BYTES, U::STORAGE);
         let fault_readback = buffer(
             gpu,
             "fault readback",
@@ -848,7 +936,18 @@ impl<'g> Tracer<'g> {
         });
         // args_bg[i]: counter i was just produced, the other is cleared for the next round.
         let args_bg = [0, 1].map(|i| bind(gpu, &l.args, &[&counters[i], &counters[1 - i]]));
-        let shade_bg = bind(gpu, &l.shade, &[&rays_buf, &pixels]);
+        let shade_bg = bind(
+            gpu,
+            &l.shade,
+            &[
+                &rays_buf,
+                &pixels,
+                &paths,
+                shade_buf,
+                &live[0],
+                &counters[0],
+            ],
+        );
         let timestamps = gpu
             .features
             .contains(wgpu::Features::TIMESTAMP_QUERY)
@@ -989,22 +1088,58 @@ impl<'g> Tracer<'g> {
         self.params.tiles_x = tiles_x;
         (self.params.rect_x, self.params.rect_y) = (rect.x, rect.y);
         (self.params.rect_w, self.params.rect_h) = (rect.w, rect.h);
+        let sh = self.settings.shading;
+        let fan = sh.fan(basis);
+        let waves = sh.waves(basis);
+        gpu_write(self.gpu, &self.shade_buf, &sh.gpu_params(basis));
+        self.params.seed = sh.seed;
+        self.params.spp = sh.spp;
         let mut pixels = vec![Pixel::default(); rect.pixels()];
-        let tiles_per_batch = self.batch.rays_cap / TILE_RAYS;
+        // A wave puts `fan` secondary rays per pixel in the ray buffer: fewer pixels per batch.
+        let tiles_per_batch = self.batch.rays_cap / fan.max(1) / TILE_RAYS;
+        if tiles_per_batch == 0 {
+            return Err(Error::Gpu(format!(
+                "{fan} secondary rays per pixel do not fit a batch of {} rays",
+                self.batch.rays_cap
+            )));
+        }
         let mut first = 0;
         while first < tiles {
             let n_tiles = tiles_per_batch.min(tiles - first);
             self.params.first_tile = first;
             self.params.batch_rays = n_tiles * TILE_RAYS;
+            for s in 0..sh.spp {
+                self.params.sample = sh.first_sample + s;
+                self.params.flags = if sh.spp > 1 { flags::JITTER } else { 0 }
+                    | if sh.cull { flags::CULL } else { 0 }
+                    | if s == 0 { flags::FIRST_SAMPLE } else { 0 };
+                let t = Instant::now();
+                stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);
+                let t2 = Instant::now();
+                stats.trace_seconds += (t2 - t).as_secs_f64();
+                self.run(&self.kernels.shade, self.params.batch_rays);
+                for _ in 0..waves {
+                    let t = Instant::now();
+                    let live = self.trace_batch(stats, Gen::Secondary { fan })?;
+                    stats.trace_seconds += t.elapsed().as_secs_f64();
+                    stats.secondary_rays += u64::from(live);
+                    stats.traced_rays += u64::from(live);
+                    if let Some(g) = &self.kernels.gather {
+                        self.run(g, self.params.batch_rays);
+                    }
+                    if live == 0 {
+                        break;
+                    }
+                }
+                stats.shade_seconds += t2.elapsed().as_secs_f64();
+            }
             let t = Instant::now();
-            self.trace_batch(stats)?;
-            let t2 = Instant::now();
-            stats.trace_seconds += (t2 - t).as_secs_f64();
-            self.read_pixels(first, n_tiles, rect, &mut pixels)?;
-            stats.shade_seconds += t2.elapsed().as_secs_f64();
+            self.read_pixels(first, n_tiles, rect, sh.spp, &mut pixels)?;
+            stats.shade_seconds += t.elapsed().as_secs_f64();
             stats.batches += 1;
             first += n_tiles;
         }
+        stats.samples = sh.spp;
         stats.rays += rect.pixels() as u64;
         Ok(pixels)
     }
@@ -1039,8 +1174,18 @@ impl<'g> Tracer<'g> {
         }
     }
 
-    /// Generates the batch's rays and runs trace rounds until none is live.
-    fn trace_batch(&mut self, stats: &mut FrameStats) -> Result<()> {
+    /// Submits one direct dispatch of `kernel` over `n` invocations (no wait).
+    fn run(&self, kernel: &wgpu::ComputePipeline, n: u32) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let groups = Dispatch::Direct(n.div_ceil(WORKGROUP));
+        self.dispatch(&mut enc, kernel, &self.batch.shade_bg, groups);
+        self.gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Generates the batch's rays (primary, or a wave of secondary rays) and runs trace rounds
+    /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
+    /// Returns how many rays entered traversal.
+    fn trace_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
         let gpu = self.gpu;
         gpu.queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
@@ -1052,19 +1197,31 @@ impl<'g> Tracer<'g> {
             }
             enc.clear_buffer(&b.stats, 0, None);
             self.clear_faults(&mut enc);
-            let groups = self.params.batch_rays.div_ceil(WORKGROUP);
-            let raygen = Dispatch::Direct(groups);
-            self.dispatch(&mut enc, &self.kernels.raygen, &b.raygen_bg, raygen);
+            match (gen_, &self.kernels.spawn) {
+                (Gen::Secondary { fan }, Some(spawn)) => {
+                    let groups =
+                        Dispatch::Direct((self.params.batch_rays * fan).div_ceil(WORKGROUP));
+                    self.dispatch(&mut enc, spawn, &b.shade_bg, groups);
+                }
+                _ => {
+                    let groups = Dispatch::Direct(self.params.batch_rays.div_ceil(WORKGROUP));
+                    self.dispatch(&mut enc, &self.kernels.raygen, &b.raygen_bg, groups);
+                }
+            }
             let one = Dispatch::Direct(1);
             self.dispatch(&mut enc, &self.kernels.args, &b.args_bg[0], one);
+            enc.copy_buffer_to_buffer(&b.counters[0], 0, &b.readback, 80, 4);
         }
         self.run_rounds(enc, stats)
     }
 
     /// Trace rounds until no ray is live, starting from the live list and counter 0 that `enc`
-    /// has already prepared (with the first `args` dispatch recorded).
-    fn run_rounds(&mut self, mut enc: wgpu::CommandEncoder, stats: &mut FrameStats) -> Result<()> {
+    /// has already prepared (with the first `args` dispatch recorded). Returns the live count
+    /// the first round started with (read from the readback at byte 80, where ray generation
+    /// copies it).
+    fn run_rounds(&mut self, mut enc: wgpu::CommandEncoder, stats: &mut FrameStats) -> Result<u32> {
         let gpu = self.gpu;
+        let mut started = None;
         // `cur` is the counter holding the live rays of the next round. With a cache, faults are
         // served after every round; without, several rounds go in one submission.
         let mut cur = 0usize;
@@ -1101,6 +1258,9 @@ impl<'g> Tracer<'g> {
             // Mapped bytes carry no alignment promise: read them unaligned.
             let counter: Counter = bytemuck::pod_read_unaligned(&data[..16]);
             let s: Stats = bytemuck::pod_read_unaligned(&data[16..64]);
+            if started.is_none() {
+                started = Some(bytemuck::pod_read_unaligned::<u32>(&data[80..84]));
+            }
             if b.timestamps.is_some() {
                 let t: [u64; 2] = bytemuck::pod_read_unaligned(&data[64..80]);
                 let period = f64::from(gpu.queue.get_timestamp_period());
@@ -1129,7 +1289,7 @@ impl<'g> Tracer<'g> {
                 stats.node_visits += u64::from(s.node_visits);
                 stats.block_entries += u64::from(s.block_entries);
                 stats.max_live_rounds = stats.max_live_rounds.max(live_rounds);
-                return Ok(());
+                return Ok(started.unwrap_or(0));
             }
             if self.dc.is_none() {
                 per_check = (per_check * 2).min(16);
@@ -1243,23 +1403,21 @@ impl<'g> Tracer<'g> {
         self.dc.as_ref().map(|d| (d.ranks, d.lines, d.map))
     }
 
+    /// Reads the batch's pixels back; colours are sums over `spp` samples, divided here.
     fn read_pixels(
         &self,
         first_tile: u32,
         n_tiles: u32,
         rect: Rect,
+        spp: u32,
         out: &mut [Pixel],
     ) -> Result<()> {
         let gpu = self.gpu;
         let b = &self.batch;
         let n = n_tiles * TILE_RAYS;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        self.dispatch(
-            &mut enc,
-            &self.kernels.shade,
-            &b.shade_bg,
-            Dispatch::Direct(n.div_ceil(WORKGROUP)),
-        );
+        // A multiply by 1/spp: exactly the sum when spp is 1.
+        let scale = 1.0 / spp as f32;
         let bytes = u64::from(n) * 32;
         enc.copy_buffer_to_buffer(&b.pixels, 0, &b.pixel_readback, 0, bytes);
         gpu.queue.submit([enc.finish()]);
@@ -1274,7 +1432,9 @@ impl<'g> Tracer<'g> {
                 let x = (tile % tiles_x) * TILE + local % TILE;
                 let y = (tile / tiles_x) * TILE + local / TILE;
                 if x < rect.w && y < rect.h {
-                    out[(y * rect.w + x) as usize] = *p;
+                    let mut p = *p;
+                    p.rgb = p.rgb.map(|c| c * scale);
+                    out[(y * rect.w + x) as usize] = p;
                 }
             }
         }
@@ -1283,7 +1443,12 @@ impl<'g> Tracer<'g> {
 
     /// Runs the layout probe (tests): `rays` must hold two states; returns the words the probe
     /// wrote. `params` replaces the tracer's own, so the caller controls every member.
-    pub fn probe(&mut self, params: Params, rays: &[RayState; 2]) -> Result<Vec<u32>> {
+    pub fn probe(
+        &mut self,
+        params: Params,
+        rays: &[RayState; 2],
+        shading: &ShadeParams,
+    ) -> Result<Vec<u32>> {
         let gpu = self.gpu;
         gpu.queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&params));
@@ -1294,14 +1459,21 @@ impl<'g> Tracer<'g> {
                 contents: bytemuck::cast_slice(rays),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let words = 44 + 8 * params.pad0 + 10 * params.pad1 + 40 + 8 * params.mesh_count;
+        let shade = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("probe shading"),
+                contents: bytemuck::bytes_of(shading),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        let words = 48 + 8 * params.pad0 + 10 * params.pad1 + 40 + 8 * params.mesh_count + 56;
         let out = buffer(
             gpu,
             "probe out",
             u64::from(words) * 4,
             wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         );
-        let bg = bind(gpu, &self.layouts.probe, &[&input, &out]);
+        let bg = bind(gpu, &self.layouts.probe, &[&input, &out, &shade]);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         self.dispatch(&mut enc, &self.kernels.probe, &bg, Dispatch::Direct(1));
         gpu.queue.submit([enc.finish()]);
@@ -1416,4 +1588,8 @@ enum Dispatch<'a> {
 /// Rounds a duration to milliseconds for reports.
 pub fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
+}
+
+fn gpu_write<T: bytemuck::Pod>(gpu: &Gpu, buf: &wgpu::Buffer, v: &T) {
+    gpu.queue.write_buffer(buf, 0, bytemuck::bytes_of(v));
 }

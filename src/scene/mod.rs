@@ -26,6 +26,91 @@ struct SceneFile {
     image: Option<ImageSpec>,
     #[serde(rename = "mesh", default)]
     meshes: Vec<MeshSpec>,
+    render: Option<RenderSpec>,
+    #[serde(rename = "light", default)]
+    lights: Vec<LightSpec>,
+}
+
+/// `[render]`: the shading mode and its settings (the command line overrides them).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RenderSpec {
+    mode: Option<crate::shading::Mode>,
+    spp: Option<u32>,
+    seed: Option<u32>,
+    ao_rays: Option<u32>,
+    ao_distance: Option<f32>,
+    max_depth: Option<u32>,
+    sky: Option<[f32; 3]>,
+    sun: Option<[f32; 3]>,
+    sun_direction: Option<[f32; 3]>,
+    ambient: Option<f32>,
+    /// Whether shadows mode adds a key light when the scene has no `[[light]]`.
+    default_light: Option<bool>,
+}
+
+/// `[[light]]`: `type = "directional"` with `direction` (where the light travels) or
+/// `type = "point"` with `position`; `color` (default white) times `intensity` (default 1).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LightSpec {
+    #[serde(rename = "type")]
+    kind: LightKind,
+    direction: Option<[f32; 3]>,
+    position: Option<[f32; 3]>,
+    color: Option<[f32; 3]>,
+    intensity: Option<f32>,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum LightKind {
+    Directional,
+    Point,
+}
+
+fn shading_of(
+    render: Option<RenderSpec>,
+    lights: &[LightSpec],
+) -> std::result::Result<crate::shading::Shading, String> {
+    use crate::shading::{Light, Shading};
+    let r = render.unwrap_or_default();
+    let d = Shading::default();
+    let mut s = Shading {
+        mode: r.mode.unwrap_or(d.mode),
+        spp: r.spp.unwrap_or(d.spp),
+        seed: r.seed.unwrap_or(d.seed),
+        ao_rays: r.ao_rays.unwrap_or(d.ao_rays),
+        ao_distance: r.ao_distance.unwrap_or(d.ao_distance),
+        max_depth: r.max_depth.unwrap_or(d.max_depth),
+        sky: r.sky.unwrap_or(d.sky),
+        sun: r.sun.unwrap_or(d.sun),
+        sun_dir: r.sun_direction,
+        ambient: r.ambient.unwrap_or(d.ambient),
+        default_light: r.default_light.unwrap_or(d.default_light),
+        ..d
+    };
+    for (i, l) in lights.iter().enumerate() {
+        let at = |m: &str| format!("light {}: {m}", i + 1);
+        let k = l.intensity.unwrap_or(1.0);
+        let color = l.color.unwrap_or([1.0; 3]).map(|c| c * k);
+        let light = match (l.kind, l.direction, l.position) {
+            (LightKind::Directional, Some(dir), None) => Light::Directional { dir, color },
+            (LightKind::Point, None, Some(pos)) => Light::Point { pos, color },
+            (LightKind::Directional, _, _) => {
+                return Err(at(
+                    "a directional light needs `direction` (and no `position`)",
+                ));
+            }
+            (LightKind::Point, _, _) => {
+                return Err(at("a point light needs `position` (and no `direction`)"));
+            }
+        };
+        s.add_light(light).map_err(|e| at(&e.to_string()))?;
+    }
+    s.validate()
+        .map_err(|e| format!("[render]/[[light]]: {e}"))?;
+    Ok(s)
 }
 
 #[derive(Clone, Copy, Debug, Deserialize)]
@@ -68,6 +153,8 @@ pub struct Scene {
     pub meshes: Vec<MeshSpec>,
     /// A prepared block file, relative to the scene file.
     pub model: Option<PathBuf>,
+    /// `[render]` and `[[light]]`.
+    pub shading: crate::shading::Shading,
 }
 
 pub const DEFAULT_COLOR: [f32; 3] = [0.8, 0.8, 0.8];
@@ -147,7 +234,9 @@ impl Scene {
                 return Err(at("translate must be finite"));
             }
         }
+        let shading = shading_of(file.render, &file.lights).map_err(bad)?;
         Ok(Scene {
+            shading,
             path: path.to_path_buf(),
             camera: file.camera,
             width: image.width,
@@ -169,6 +258,7 @@ impl Scene {
             background: DEFAULT_BACKGROUND,
             image_given: true,
             model: None,
+            shading: crate::shading::Shading::default(),
             meshes: vec![MeshSpec {
                 file: None,
                 generator: Some(generator.name().into()),
@@ -298,6 +388,17 @@ impl Default for Bounds {
 }
 
 impl Bounds {
+    /// Length of the box's diagonal (0 when empty).
+    pub fn diagonal(&self) -> f64 {
+        if self.is_empty() {
+            return 0.0;
+        }
+        (0..3)
+            .map(|a| (f64::from(self.max[a]) - f64::from(self.min[a])).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+
     pub fn grow(&mut self, p: [f32; 3]) {
         for (a, v) in p.into_iter().enumerate() {
             self.min[a] = self.min[a].min(v);

@@ -3,3 +3,4 @@
 
 pub mod cpu;
 pub mod offset;
+pub mod shade;

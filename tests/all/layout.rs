@@ -2,7 +2,7 @@
 //! shader, using the same accessors as the kernels, and compared word by word.
 
 use crate::common::*;
-use dcrt::gpu::layout::{MeshInfo, Params, RayState};
+use dcrt::gpu::layout::{Light, MeshInfo, Params, RayState, ShadeParams};
 use dcrt::gpu::tracer::Settings;
 use dcrt::scene::Model;
 
@@ -51,7 +51,33 @@ fn every_member_reads_back_through_the_shader() {
         rect_h: 111,
         pad0: nodes,
         pad1: tris,
+        sample: 112,
+        seed: 113,
+        flags: 114,
+        spp: 115,
         ..base
+    };
+    let g = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.25) };
+    let shading = ShadeParams {
+        sky: g(1),
+        sun_dir: g(2),
+        sun: g(3),
+        mode: 201,
+        fan: 202,
+        ao_rays: 203,
+        ao_distance: 204.5,
+        max_depth: 205,
+        rr_depth: 206,
+        light_count: 207,
+        offset_mode: 208,
+        epsilon: 209.5,
+        ambient: 210.5,
+        any_hit: 211,
+        pad: 212,
+        lights: std::array::from_fn(|i| Light {
+            pos: g(10 + 2 * i as u32),
+            color: g(11 + 2 * i as u32),
+        }),
     };
     let rays = [
         RayState {
@@ -68,7 +94,7 @@ fn every_member_reads_back_through_the_shader() {
             prim: 15,
             normal: [16.5, 17.5, 18.5],
             wait_block: 19,
-            pad: 20,
+            flags: 20,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -84,10 +110,10 @@ fn every_member_reads_back_through_the_shader() {
             prim: 83,
             normal: [-0.5, 0.25, 1e-3],
             wait_block: u32::MAX,
-            pad: 86,
+            flags: 86,
         },
     ];
-    let out = tracer.probe(params, &rays).unwrap();
+    let out = tracer.probe(params, &rays, &shading).unwrap();
     let mut expect = words(&params);
     for n in &prepared.bvh.nodes {
         expect.extend(words(n));
@@ -108,6 +134,7 @@ fn every_member_reads_back_through_the_shader() {
             pad: [0; 3],
         }));
     }
+    expect.extend(words(&shading));
     assert_eq!(out.len(), expect.len());
     for (i, (a, b)) in out.iter().zip(&expect).enumerate() {
         assert_eq!(a, b, "word {i} differs");

@@ -10,4 +10,5 @@ mod gpu_vs_cpu;
 mod layout;
 mod robust;
 mod shaders;
+mod shading;
 mod trace_loop;

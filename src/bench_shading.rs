@@ -1,0 +1,326 @@
+//! `dcrt bench --shading`: time against error for AO and path tracing on the rm and assembly
+//! generators, and the cost and error of the accuracy knobs. A table, `--json`, and a PNG plot.
+
+use anyhow::Result;
+use dcrt::blocks::Format;
+use dcrt::bvh::Preset;
+use dcrt::gpu::Gpu;
+use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
+use dcrt::render::Prepared;
+use dcrt::scene::Scene;
+use dcrt::scene::generate::Generator;
+use dcrt::shading::{Mode, Offset, Shading};
+use std::path::Path;
+
+#[derive(serde::Serialize, Clone)]
+pub struct Point {
+    scene: String,
+    mode: String,
+    spp: u32,
+    ms: f64,
+    rmse: f64,
+    rel_mse: f64,
+}
+
+#[derive(serde::Serialize)]
+pub struct Knob {
+    scene: String,
+    mode: String,
+    knob: String,
+    ms: f64,
+    steps: u64,
+    traced_rays: u64,
+    rmse: f64,
+    /// Whether the image is bit-identical to the default setting's.
+    same_image: bool,
+}
+
+#[derive(serde::Serialize)]
+pub struct Report {
+    adapter: String,
+    width: u32,
+    height: u32,
+    triangles: u64,
+    reference_spp: [u32; 2],
+    curve: Vec<Point>,
+    knobs: Vec<Knob>,
+}
+
+fn error(f: &Frame, r: &Frame) -> (f64, f64) {
+    let (mut se, mut rel) = (0.0, 0.0);
+    let n = (3 * f.pixels.len()) as f64;
+    for (p, q) in f.pixels.iter().zip(&r.pixels) {
+        for a in 0..3 {
+            let d = f64::from(p.rgb[a]) - f64::from(q.rgb[a]);
+            se += d * d;
+            rel += d * d / (f64::from(q.rgb[a]).powi(2) + 1e-2);
+        }
+    }
+    ((se / n).sqrt(), rel / n)
+}
+
+fn bits(f: &Frame) -> Vec<u8> {
+    bytemuck::cast_slice(&f.pixels).to_vec()
+}
+
+pub struct Args<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub triangles: u64,
+    pub max_spp: u32,
+    pub json: bool,
+    pub plot: Option<&'a Path>,
+}
+
+pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
+    let (w, h) = (a.width, a.height);
+    let ref_spp = [64u32, 256u32]; // AO (x36 rays), path
+    let mut curve = Vec::new();
+    let mut knobs = Vec::new();
+    for g in [Generator::Rm, Generator::Assembly] {
+        let scene = Scene::generated(g, a.triangles, w, h);
+        let model = scene.load_model()?;
+        let camera = scene.camera_or_default(&model);
+        let basis = camera.basis(w, h);
+        let p = Prepared::from_model(model, Preset::Fast, Format::default(), 0.0)?;
+        for (mi, mode) in [Mode::Ao, Mode::Path].into_iter().enumerate() {
+            let base = Shading {
+                mode,
+                ao_distance: 0.25 * p.model.bounds.diagonal() as f32,
+                ..Shading::default()
+            };
+            let mut t = p.tracer(
+                gpu,
+                Settings {
+                    shading: base,
+                    ..Settings::default()
+                },
+            )?;
+            let go = |t: &mut dcrt::gpu::tracer::Tracer<'_>, sh: Shading| {
+                t.set_shading(sh)?;
+                t.render(&basis, scene.background)
+            };
+            // Warm-up, then a converged reference with other samples (another seed).
+            go(&mut t, Shading { spp: 1, ..base })?;
+            let (reference, _) = go(
+                &mut t,
+                Shading {
+                    spp: ref_spp[mi],
+                    seed: 1000,
+                    ..base
+                },
+            )?;
+            let name = g.name().to_string();
+            let mut spp = 1;
+            while spp <= a.max_spp {
+                let (f, s) = go(&mut t, Shading { spp, ..base })?;
+                let (rmse, rel_mse) = error(&f, &reference);
+                curve.push(Point {
+                    scene: name.clone(),
+                    mode: mode.name().into(),
+                    spp,
+                    ms: s.seconds * 1e3,
+                    rmse,
+                    rel_mse,
+                });
+                spp *= 2;
+            }
+            // Knobs at 4 spp against the default setting.
+            let k = Shading { spp: 4, ..base };
+            let (f0, s0) = go(&mut t, k)?;
+            let mut knob = |label: &str, f: &Frame, s: &FrameStats| {
+                knobs.push(Knob {
+                    scene: name.clone(),
+                    mode: mode.name().into(),
+                    knob: label.into(),
+                    ms: s.seconds * 1e3,
+                    steps: s.steps,
+                    traced_rays: s.traced_rays,
+                    rmse: error(f, &reference).0,
+                    same_image: bits(f) == bits(&f0),
+                });
+            };
+            knob("default (any-hit, ulp offset, cull, budget 4096)", &f0, &s0);
+            let variants: Vec<(&str, Shading)> = vec![
+                (
+                    "closest-hit shadow rays",
+                    Shading {
+                        any_hit: false,
+                        ..k
+                    },
+                ),
+                (
+                    "fixed epsilon 1e-4",
+                    Shading {
+                        offset: Offset::Epsilon(1e-4),
+                        ..k
+                    },
+                ),
+                (
+                    "fixed epsilon 1e-2",
+                    Shading {
+                        offset: Offset::Epsilon(1e-2),
+                        ..k
+                    },
+                ),
+                (
+                    "no offset",
+                    Shading {
+                        offset: Offset::Epsilon(0.0),
+                        ..k
+                    },
+                ),
+                ("no box culling", Shading { cull: false, ..k }),
+            ];
+            for (label, sh) in variants {
+                let (f, s) = go(&mut t, sh)?;
+                knob(label, &f, &s);
+            }
+            let mut tb = p.tracer(
+                gpu,
+                Settings {
+                    shading: k,
+                    step_budget: 256,
+                    ..Settings::default()
+                },
+            )?;
+            tb.render(&basis, scene.background)?;
+            let (f, s) = tb.render(&basis, scene.background)?;
+            knob("step budget 256", &f, &s);
+        }
+    }
+    let report = Report {
+        adapter: gpu.describe(),
+        width: w,
+        height: h,
+        triangles: a.triangles,
+        reference_spp: ref_spp,
+        curve,
+        knobs,
+    };
+    if let Some(path) = a.plot {
+        plot(&report.curve, path)?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!("adapter   {}", report.adapter);
+    println!(
+        "{}x{}, {} triangles per scene; references: AO {} spp x 36 rays, path {} spp (other seed)",
+        w, h, a.triangles, ref_spp[0], ref_spp[1]
+    );
+    println!(
+        "{:<9} {:<5} {:>5} {:>10} {:>10} {:>10}",
+        "scene", "mode", "spp", "ms", "RMSE", "relMSE"
+    );
+    for p in &report.curve {
+        println!(
+            "{:<9} {:<5} {:>5} {:>10.1} {:>10.5} {:>10.6}",
+            p.scene, p.mode, p.spp, p.ms, p.rmse, p.rel_mse
+        );
+    }
+    println!();
+    println!(
+        "{:<9} {:<5} {:<50} {:>9} {:>11} {:>9} {:>9} {:>5}",
+        "scene", "mode", "knob (4 spp)", "ms", "steps", "rays", "RMSE", "same"
+    );
+    for k in &report.knobs {
+        println!(
+            "{:<9} {:<5} {:<50} {:>9.1} {:>11} {:>9} {:>9.5} {:>5}",
+            k.scene, k.mode, k.knob, k.ms, k.steps, k.traced_rays, k.rmse, k.same_image
+        );
+    }
+    Ok(())
+}
+
+/// RMSE against spp (left) and against time (right), log-log, one colour per scene and mode:
+/// rm/ao red, rm/path orange, assembly/ao blue, assembly/path cyan. Grid lines at powers of 10
+/// (error) and 2 (spp) or 10 (ms).
+fn plot(points: &[Point], path: &Path) -> Result<()> {
+    use image::{Rgb, RgbImage};
+    let (pw, ph, m) = (400u32, 300u32, 20u32);
+    let mut img = RgbImage::from_pixel(2 * pw, ph, Rgb([255, 255, 255]));
+    let series = [
+        ("rm", "ao", Rgb([220, 30, 30])),
+        ("rm", "path", Rgb([240, 150, 0])),
+        ("assembly", "ao", Rgb([30, 60, 220])),
+        ("assembly", "path", Rgb([0, 180, 200])),
+    ];
+    let ys: Vec<f64> = points.iter().map(|p| p.rmse.max(1e-6).log10()).collect();
+    let (y0, y1) = (
+        ys.iter().copied().fold(f64::INFINITY, f64::min).floor(),
+        ys.iter().copied().fold(f64::NEG_INFINITY, f64::max).ceil(),
+    );
+    for panel in 0..2u32 {
+        let xv = |p: &Point| {
+            if panel == 0 {
+                f64::from(p.spp).log2()
+            } else {
+                p.ms.max(1e-3).log10()
+            }
+        };
+        let xs: Vec<f64> = points.iter().map(xv).collect();
+        let (x0, x1) = (
+            xs.iter().copied().fold(f64::INFINITY, f64::min).floor(),
+            xs.iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max)
+                .ceil()
+                .max(1.0),
+        );
+        let px = |x: f64| {
+            panel * pw + m + ((x - x0) / (x1 - x0).max(1e-9) * f64::from(pw - 2 * m)) as u32
+        };
+        let py = |y: f64| ph - m - ((y - y0) / (y1 - y0).max(1e-9) * f64::from(ph - 2 * m)) as u32;
+        let grey = Rgb([200, 200, 200]);
+        let mut gx = x0;
+        while gx <= x1 + 1e-9 {
+            for y in m..=ph - m {
+                img.put_pixel(px(gx).min(2 * pw - 1), y, grey);
+            }
+            gx += 1.0;
+        }
+        let mut gy = y0;
+        while gy <= y1 + 1e-9 {
+            for x in panel * pw + m..=(panel + 1) * pw - m {
+                img.put_pixel(x, py(gy).min(ph - 1), grey);
+            }
+            gy += 1.0;
+        }
+        for (scene, mode, c) in series {
+            let pts: Vec<(u32, u32)> = points
+                .iter()
+                .filter(|p| p.scene == scene && p.mode == mode)
+                .map(|p| (px(xv(p)), py(p.rmse.max(1e-6).log10())))
+                .collect();
+            for w in pts.windows(2) {
+                line(&mut img, w[0], w[1], c);
+            }
+            for &(x, y) in &pts {
+                for dx in 0..5 {
+                    for dy in 0..5 {
+                        let (xx, yy) = ((x + dx).saturating_sub(2), (y + dy).saturating_sub(2));
+                        if xx < 2 * pw && yy < ph {
+                            img.put_pixel(xx, yy, c);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    img.save(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+fn line(img: &mut image::RgbImage, a: (u32, u32), b: (u32, u32), c: image::Rgb<u8>) {
+    let n = (a.0.abs_diff(b.0)).max(a.1.abs_diff(b.1)).max(1);
+    for i in 0..=n {
+        let t = f64::from(i) / f64::from(n);
+        let x = (f64::from(a.0) + t * (f64::from(b.0) - f64::from(a.0))).round() as u32;
+        let y = (f64::from(a.1) + t * (f64::from(b.1) - f64::from(a.1))).round() as u32;
+        if x < img.width() && y < img.height() {
+            img.put_pixel(x, y, c);
+        }
+    }
+}

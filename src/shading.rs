@@ -1,0 +1,438 @@
+//! Shading modes and their settings, and the CPU mirrors of the GPU's sampler, ray-origin offset
+//! and hemisphere sampling (`shaders/common.wgsl`), bit for bit where the arithmetic is integer.
+//!
+//! Modes: `cast` (primary rays, headlight Lambert), `shadows` (hard shadows from directional and
+//! point lights), `ao` (ambient occlusion, N cosine-weighted rays per hit within a distance),
+//! `path` (diffuse path tracing under a constant sky and a sun, next-event estimation towards
+//! the sun, Russian roulette, a maximum depth).
+
+use crate::error::{Error, Result};
+use crate::gpu::layout::{self, MAX_LIGHTS, ShadeParams};
+use crate::scene::CameraBasis;
+
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Primary rays only, headlight Lambert shading.
+    #[default]
+    Cast,
+    /// Hard shadows from the scene's lights (a default key light when it has none).
+    Shadows,
+    /// Ambient occlusion.
+    Ao,
+    /// Diffuse path tracing with a constant sky and a sun.
+    Path,
+}
+
+impl Mode {
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Cast => "cast",
+            Mode::Shadows => "shadows",
+            Mode::Ao => "ao",
+            Mode::Path => "path",
+        }
+    }
+}
+
+/// A light of the `shadows` mode. Colours scale the light: a surface facing a directional
+/// light of colour c receives albedo * c; a point light's colour is that at unit distance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// `dir`: the direction the light travels.
+    Directional {
+        dir: [f32; 3],
+        color: [f32; 3],
+    },
+    Point {
+        pos: [f32; 3],
+        color: [f32; 3],
+    },
+}
+
+/// How secondary rays leave a surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Offset {
+    /// Integer ulps along the normal (Wächter & Binder, Ray Tracing Gems ch. 6).
+    Ulp,
+    /// A fixed distance along the normal (the classic epsilon, for comparison).
+    Epsilon(f32),
+}
+
+pub const DEFAULT_AO_RAYS: u32 = 36;
+pub const MAX_AO_RAYS: u32 = 1024;
+pub const MAX_SPP: u32 = 1 << 16;
+pub const MAX_DEPTH: u32 = 256;
+/// The sun and the default key light: from above, behind and left of the camera.
+const KEY_LIGHT: [f32; 3] = [-0.4, 1.0, -0.6]; // (right, up, forward) towards the light
+
+/// Everything the shading modes need; `Copy`, so it travels inside the tracer's `Settings`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shading {
+    pub mode: Mode,
+    /// Samples per pixel of one render.
+    pub spp: u32,
+    /// The sampler index of the render's first sample: renders of samples `0..a` and `a..a+b`
+    /// combine into the render of `0..a+b` (progressive accumulation).
+    pub first_sample: u32,
+    pub seed: u32,
+    pub ao_rays: u32,
+    /// Occluders farther than this do not count (f32::INFINITY: any).
+    pub ao_distance: f32,
+    /// Path: most bounces after the camera hit.
+    pub max_depth: u32,
+    /// Path: Russian roulette from this bounce on.
+    pub rr_depth: u32,
+    /// Path: sky radiance.
+    pub sky: [f32; 3],
+    /// Path: direction the sunlight travels (`None`: the camera's key light direction).
+    pub sun_dir: Option<[f32; 3]>,
+    /// Path: sun irradiance (zero: no sun, no next-event rays).
+    pub sun: [f32; 3],
+    /// Shadows: the lights; with none and `default_light`, a key light tied to the camera.
+    pub lights: [Option<Light>; MAX_LIGHTS],
+    pub default_light: bool,
+    pub ambient: f32,
+    pub offset: Offset,
+    /// Shadow and occlusion rays stop at the first hit (false: closest hit, for measurement).
+    pub any_hit: bool,
+    /// Primary rays that miss the model's box skip traversal.
+    pub cull: bool,
+}
+
+impl Default for Shading {
+    fn default() -> Self {
+        Shading {
+            mode: Mode::Cast,
+            spp: 1,
+            first_sample: 0,
+            seed: 0,
+            ao_rays: DEFAULT_AO_RAYS,
+            ao_distance: f32::INFINITY,
+            max_depth: 8,
+            rr_depth: 3,
+            sky: [0.6, 0.7, 0.9],
+            sun_dir: None,
+            sun: [2.5, 2.4, 2.2],
+            lights: [None; MAX_LIGHTS],
+            default_light: true,
+            ambient: 0.1,
+            offset: Offset::Ulp,
+            any_hit: true,
+            cull: true,
+        }
+    }
+}
+
+fn finite_nonneg(v: [f32; 3]) -> bool {
+    v.iter().all(|c| c.is_finite() && *c >= 0.0)
+}
+
+fn unit(v: [f32; 3]) -> Option<[f32; 3]> {
+    let l = v.iter().map(|c| c * c).sum::<f32>().sqrt();
+    (v.iter().all(|c| c.is_finite()) && l > 0.0 && l.is_finite()).then(|| v.map(|c| c / l))
+}
+
+impl Shading {
+    /// Checks every setting; the error names the one that is wrong.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::Invalid(m));
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return bad(format!("spp must be 1..={MAX_SPP}, got {}", self.spp));
+        }
+        if self.first_sample.checked_add(self.spp).is_none() {
+            return bad("first sample + spp overflows".into());
+        }
+        if !(1..=MAX_AO_RAYS).contains(&self.ao_rays) {
+            return bad(format!(
+                "ao rays must be 1..={MAX_AO_RAYS}, got {}",
+                self.ao_rays
+            ));
+        }
+        if self.ao_distance.is_nan() || self.ao_distance <= 0.0 {
+            return bad(format!(
+                "ao distance must be positive, got {}",
+                self.ao_distance
+            ));
+        }
+        if !(1..=MAX_DEPTH).contains(&self.max_depth) {
+            return bad(format!(
+                "max depth must be 1..={MAX_DEPTH}, got {}",
+                self.max_depth
+            ));
+        }
+        if !finite_nonneg(self.sky) {
+            return bad(format!(
+                "sky must be finite and non-negative, got {:?}",
+                self.sky
+            ));
+        }
+        if !finite_nonneg(self.sun) {
+            return bad(format!(
+                "sun must be finite and non-negative, got {:?}",
+                self.sun
+            ));
+        }
+        if let Some(d) = self.sun_dir
+            && unit(d).is_none()
+        {
+            return bad(format!(
+                "sun direction must be finite and non-zero, got {d:?}"
+            ));
+        }
+        if !(self.ambient.is_finite() && self.ambient >= 0.0) {
+            return bad(format!(
+                "ambient must be finite and non-negative, got {}",
+                self.ambient
+            ));
+        }
+        if let Offset::Epsilon(e) = self.offset
+            && !(e.is_finite() && e >= 0.0)
+        {
+            return bad(format!("epsilon must be finite and non-negative, got {e}"));
+        }
+        for (i, l) in self.lights.iter().flatten().enumerate() {
+            match *l {
+                Light::Directional { dir, color } => {
+                    if unit(dir).is_none() {
+                        return bad(format!(
+                            "light {}: direction must be finite and non-zero, got {dir:?}",
+                            i + 1
+                        ));
+                    }
+                    if !finite_nonneg(color) {
+                        return bad(format!(
+                            "light {}: color must be finite and non-negative, got {color:?}",
+                            i + 1
+                        ));
+                    }
+                }
+                Light::Point { pos, color } => {
+                    if !pos.iter().all(|c| c.is_finite()) {
+                        return bad(format!(
+                            "light {}: position must be finite, got {pos:?}",
+                            i + 1
+                        ));
+                    }
+                    if !finite_nonneg(color) {
+                        return bad(format!(
+                            "light {}: color must be finite and non-negative, got {color:?}",
+                            i + 1
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds a light; errors when all `MAX_LIGHTS` slots are taken.
+    pub fn add_light(&mut self, light: Light) -> Result<()> {
+        match self.lights.iter_mut().find(|l| l.is_none()) {
+            Some(slot) => {
+                *slot = Some(light);
+                Ok(())
+            }
+            None => Err(Error::Invalid(format!(
+                "at most {MAX_LIGHTS} lights are supported"
+            ))),
+        }
+    }
+
+    /// The lights a render uses: the given ones, or the default key light (shadows mode only).
+    pub fn effective_lights(&self, basis: &CameraBasis) -> Vec<Light> {
+        let given: Vec<Light> = self.lights.iter().flatten().copied().collect();
+        if given.is_empty() && self.default_light {
+            let to = key_direction(basis);
+            return vec![Light::Directional {
+                dir: to.map(|c| -c),
+                color: [0.9, 0.9, 0.9],
+            }];
+        }
+        given
+    }
+
+    fn sun_on(&self) -> bool {
+        self.sun.iter().any(|&c| c > 0.0)
+    }
+
+    /// Secondary rays per pixel in one wave (0: no wave).
+    pub fn fan(&self, basis: &CameraBasis) -> u32 {
+        match self.mode {
+            Mode::Cast => 0,
+            Mode::Shadows => self.effective_lights(basis).len() as u32,
+            Mode::Ao => self.ao_rays,
+            Mode::Path => 1 + u32::from(self.sun_on()),
+        }
+    }
+
+    /// Waves of secondary rays per sample (an upper bound for paths, which may end sooner).
+    pub fn waves(&self, basis: &CameraBasis) -> u32 {
+        match self.mode {
+            Mode::Cast => 0,
+            Mode::Path => self.max_depth,
+            _ => u32::from(self.fan(basis) > 0),
+        }
+    }
+
+    /// The kernels' view of these settings for a camera.
+    pub fn gpu_params(&self, basis: &CameraBasis) -> ShadeParams {
+        let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
+        let mut p = ShadeParams {
+            sky: v4(self.sky, 0.0),
+            mode: self.mode as u32,
+            fan: self.fan(basis),
+            ao_rays: self.ao_rays,
+            ao_distance: self.ao_distance.min(layout::FAR),
+            max_depth: self.max_depth,
+            rr_depth: self.rr_depth,
+            ambient: self.ambient,
+            any_hit: if self.any_hit {
+                layout::flags::ANY_HIT
+            } else {
+                0
+            },
+            ..ShadeParams::default()
+        };
+        let sun_to = match self.sun_dir.and_then(unit) {
+            Some(d) => d.map(|c| -c),
+            None => key_direction(basis),
+        };
+        p.sun_dir = v4(sun_to, 0.0);
+        p.sun = v4(self.sun, if self.sun_on() { 1.0 } else { 0.0 });
+        (p.offset_mode, p.epsilon) = match self.offset {
+            Offset::Ulp => (0, 0.0),
+            Offset::Epsilon(e) => (1, e),
+        };
+        if self.mode == Mode::Shadows {
+            let lights = self.effective_lights(basis);
+            p.light_count = lights.len() as u32;
+            for (slot, l) in p.lights.iter_mut().zip(lights) {
+                *slot = match l {
+                    Light::Directional { dir, color } => layout::Light {
+                        pos: v4(unit(dir).unwrap_or([0.0, 0.0, 1.0]).map(|c| -c), 0.0),
+                        color: v4(color, 0.0),
+                    },
+                    Light::Point { pos, color } => layout::Light {
+                        pos: v4(pos, 1.0),
+                        color: v4(color, 0.0),
+                    },
+                };
+            }
+        }
+        p
+    }
+}
+
+/// Unit direction towards the key light, from the camera's axes.
+fn key_direction(basis: &CameraBasis) -> [f32; 3] {
+    let n = |v: [f32; 3]| unit(v).unwrap_or([0.0, 0.0, 1.0]);
+    let (r, u, f) = (n(basis.right), n(basis.up), n(basis.forward));
+    let v: [f32; 3] =
+        std::array::from_fn(|i| KEY_LIGHT[0] * r[i] + KEY_LIGHT[1] * u[i] + KEY_LIGHT[2] * f[i]);
+    n(v)
+}
+
+/// lowbias32 (C. Wellons), as `hash` in `shaders/common.wgsl`.
+pub fn hash(x: u32) -> u32 {
+    let mut v = x;
+    v ^= v >> 16;
+    v = v.wrapping_mul(0x7feb_352d);
+    v ^= v >> 15;
+    v = v.wrapping_mul(0x846c_a68b);
+    v ^= v >> 16;
+    v
+}
+
+/// The sampler (`sample2` in `shaders/common.wgsl`), bit for bit: point `index` of the R2
+/// sequence in 32-bit fixed point, rotated per pixel and dimension pair by a hash.
+pub fn sample2(seed: u32, pixel: u32, dim: u32, index: u32) -> [f32; 2] {
+    let h = hash(pixel ^ hash(dim.wrapping_mul(0x9e37_79b9).wrapping_add(seed)));
+    let x = hash(h).wrapping_add(index.wrapping_mul(3_242_174_889));
+    let y = hash(h ^ 0x68bc_21eb).wrapping_add(index.wrapping_mul(2_447_445_414));
+    [(x >> 8) as f32, (y >> 8) as f32].map(|v| v * (1.0 / 16_777_216.0))
+}
+
+/// Wächter & Binder's offset (`offset_ray` in `shaders/common.wgsl`): `p` moved along `n` by
+/// `256 n` ulps per component, or by `n / 65536` where a component is within 1/32 of zero.
+pub fn offset_ray(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|i| {
+        if p[i].abs() < 1.0 / 32.0 {
+            p[i] + (1.0 / 65536.0) * n[i]
+        } else {
+            // `as` truncates towards zero, as WGSL's f32 to i32 conversion does.
+            let of = (256.0 * n[i]) as i32;
+            let of = if p[i] < 0.0 { -of } else { of };
+            f32::from_bits((p[i].to_bits() as i32).wrapping_add(of) as u32)
+        }
+    })
+}
+
+/// A cosine-weighted direction about unit `n` (`cosine_dir` in `shaders/common.wgsl`).
+pub fn cosine_dir(n: [f32; 3], u: [f32; 2]) -> [f32; 3] {
+    let s = if n[2] >= 0.0 { 1.0f32 } else { -1.0 };
+    let a = -1.0 / (s + n[2]);
+    let b = n[0] * n[1] * a;
+    let t = [1.0 + s * n[0] * n[0] * a, s * b, -s * n[0]];
+    let bt = [b, s + n[1] * n[1] * a, -n[1]];
+    let r = u[0].sqrt();
+    let phi = 2.0 * std::f32::consts::PI * u[1];
+    let z = (1.0 - u[0]).max(0.0).sqrt();
+    let d: [f32; 3] =
+        std::array::from_fn(|i| r * phi.cos() * t[i] + r * phi.sin() * bt[i] + z * n[i]);
+    unit(d).unwrap_or(n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sampler_is_stratified_and_in_range() {
+        // 64 points of one pixel's sequence fall in 64 different cells of an 8x8 grid at most
+        // twice each (R2 is a low-discrepancy lattice; a random set would collide far more).
+        let mut cells = [0u32; 64];
+        for i in 0..64 {
+            let [x, y] = sample2(7, 1234, 1, i);
+            assert!((0.0..1.0).contains(&x) && (0.0..1.0).contains(&y));
+            cells[(y * 8.0) as usize * 8 + (x * 8.0) as usize] += 1;
+        }
+        assert!(cells.iter().all(|&c| c <= 2), "{cells:?}");
+        assert!(cells.iter().filter(|&&c| c > 0).count() >= 48);
+    }
+
+    #[test]
+    fn offset_moves_along_the_normal() {
+        for p in [
+            [1.0f32, -2.0, 3.0e5],
+            [0.001, -0.001, 0.0],
+            [-7.0e6, 1.0e-3, 5.0],
+        ] {
+            let n = [0.0f32, 0.6, 0.8];
+            let q = offset_ray(p, n);
+            assert_eq!(q[0], p[0], "a zero normal component moves nothing");
+            assert!(q[1] > p[1] && q[2] > p[2], "{p:?} -> {q:?}");
+        }
+    }
+
+    #[test]
+    fn cosine_directions_are_unit_and_above_the_surface() {
+        let n = [0.0f32, -0.6, 0.8];
+        for i in 0..256 {
+            let d = cosine_dir(n, sample2(0, 5, 1, i));
+            let len: f32 = d.iter().map(|c| c * c).sum::<f32>().sqrt();
+            assert!((len - 1.0).abs() < 1e-5);
+            assert!(d.iter().zip(n).map(|(a, b)| a * b).sum::<f32>() >= -1e-6);
+        }
+    }
+}

@@ -1,0 +1,361 @@
+//! Shading modes: furnace, lone convex object under AO, GPU against the CPU reference for
+//! shadows and AO, distributed cache against replicated for every mode, determinism, and the
+//! `cast` image unchanged by culling.
+
+use crate::common::*;
+use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::render::{DcOptions, Prepared};
+use dcrt::scene::generate::Generator;
+use dcrt::scene::{Camera, Model, Scene};
+use dcrt::shading::{Light, Mode, Shading};
+use dcrt::trace::cpu::Reference;
+use dcrt::trace::shade::reference_image;
+
+/// A closed lat-long sphere of radius about 1 at the origin; `bump` > 0 makes it non-convex.
+fn sphere(rings: u32, segs: u32, bump: f32) -> Model {
+    let r = |t: f32, p: f32| 1.0 + bump * (5.0 * t).sin() * (4.0 * p).cos();
+    let v = |i: u32, j: u32| -> [f32; 3] {
+        if i == 0 {
+            return [0.0, 0.0, r(0.0, 0.0)];
+        }
+        if i == rings {
+            return [0.0, 0.0, -r(std::f32::consts::PI, 0.0)];
+        }
+        let t = std::f32::consts::PI * i as f32 / rings as f32;
+        let p = std::f32::consts::TAU * (j % segs) as f32 / segs as f32;
+        let k = r(t, p);
+        [k * t.sin() * p.cos(), k * t.sin() * p.sin(), k * t.cos()]
+    };
+    let mut tris = Vec::new();
+    for i in 0..rings {
+        for j in 0..segs {
+            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j), v(i + 1, j + 1));
+            if i > 0 {
+                tris.push([a, c, b]);
+            }
+            if i + 1 < rings {
+                tris.push([b, c, d]);
+            }
+        }
+    }
+    Model::from_triangles(tris)
+}
+
+fn camera() -> Camera {
+    Camera {
+        position: [0.3, -4.0, 1.0],
+        focal_point: [0.0, 0.0, 0.0],
+        view_up: [0.0, 0.0, 1.0],
+        view_angle: 40.0,
+    }
+}
+
+fn shaded(p: &Prepared, cam: &Camera, w: u32, h: u32, sh: Shading) -> Frame {
+    let gpu = gpu();
+    let s = Settings {
+        shading: sh,
+        ..Settings::default()
+    };
+    render(&gpu, p, cam, w, h, s).0
+}
+
+fn bits(f: &Frame) -> Vec<u8> {
+    bytemuck::cast_slice(&f.pixels).to_vec()
+}
+
+#[test]
+fn furnace_converges_to_one() {
+    // Albedo 1 under a sky of radiance 1 and no sun: every path carries throughput 1 until it
+    // escapes, so every pixel (object or sky) is 1. A path that self-intersects (bad offset)
+    // or is cut at the depth limit darkens its pixel.
+    let mut m = sphere(48, 96, 0.12);
+    m.colors = vec![[1.0; 3]];
+    let p = prepare(m);
+    let sh = Shading {
+        mode: Mode::Path,
+        spp: 8,
+        sky: [1.0; 3],
+        sun: [0.0; 3],
+        max_depth: 64,
+        ..Shading::default()
+    };
+    let f = shaded(&p, &camera(), 32, 32, sh);
+    let hits = f.pixels.iter().filter(|p| !is_miss(p)).count();
+    assert!(
+        hits > 200,
+        "the object fills part of the view ({hits} pixels)"
+    );
+    let mean: f64 = f
+        .pixels
+        .iter()
+        .flat_map(|p| p.rgb)
+        .map(f64::from)
+        .sum::<f64>()
+        / (3 * f.pixels.len()) as f64;
+    let off = f
+        .pixels
+        .iter()
+        .filter(|p| p.rgb.iter().any(|c| (c - 1.0).abs() > 1e-4))
+        .count();
+    eprintln!(
+        "furnace: mean {mean}, {off} of {} pixels off 1 by > 1e-4",
+        f.pixels.len()
+    );
+    assert!(
+        (mean - 1.0).abs() < 1e-3,
+        "mean radiance {mean}, expected 1 within 1e-3"
+    );
+    assert!(
+        off * 100 <= f.pixels.len(),
+        "{off} pixels differ from 1 by more than 1e-4"
+    );
+}
+
+#[test]
+fn ao_of_a_lone_convex_object_is_one() {
+    let p = prepare(sphere(24, 48, 0.0));
+    let sh = Shading {
+        mode: Mode::Ao,
+        ..Shading::default()
+    };
+    let f = shaded(&p, &camera(), 32, 32, sh);
+    let hit: Vec<_> = f.pixels.iter().filter(|p| !is_miss(p)).collect();
+    assert!(hit.len() > 100);
+    for px in hit {
+        assert_eq!(px.rgb, [1.0; 3], "prim {}: AO of a convex object", px.id);
+    }
+}
+
+/// GPU against the CPU reference for one mode on a small rm isosurface.
+fn against_reference(sh: Shading) {
+    let (w, h) = (48, 40);
+    let scene = Scene::generated(Generator::Rm, 20_000, w, h);
+    let model = scene.load_model().unwrap();
+    let cam = scene.camera_or_default(&model);
+    let p = prepare(model);
+    let f = shaded(&p, &cam, w, h, sh);
+    let reference = Reference::new(&p.model.triangles);
+    let bg = [0.1, 0.2, 0.3];
+    let cpu = reference_image(&reference, &p.model, &cam.basis(w, h), &sh, bg).unwrap();
+    let (mut worst, mut sum, mut far) = (0.0f32, 0.0f64, 0usize);
+    for (g, c) in f.pixels.iter().zip(&cpu) {
+        let d = (0..3).map(|a| (g.rgb[a] - c[a]).abs()).fold(0.0, f32::max);
+        worst = worst.max(d);
+        sum += f64::from(d);
+        // One AO ray of 36 flipping by rounding moves a pixel by 1/36.
+        far += usize::from(d > 0.06);
+    }
+    let n = cpu.len();
+    let mean = sum / n as f64;
+    eprintln!(
+        "{:?}: mean |gpu - cpu| {mean:.2e}, worst {worst:.3}, {far} of {n} pixels off by > 0.06",
+        sh.mode
+    );
+    assert!(mean < 5e-3, "mean difference {mean}");
+    assert!(far * 100 <= n, "{far} pixels differ by more than 0.06");
+    let lit = f.pixels.iter().filter(|p| !is_miss(p)).count();
+    assert!(lit > n / 4, "the view sees the model");
+    let shadowed = f
+        .pixels
+        .iter()
+        .zip(&cpu)
+        .filter(|(g, c)| !is_miss(g) && c[0] < 0.5 * g.rgb[0].max(1e-3) + 0.9)
+        .count();
+    let distinct: std::collections::BTreeSet<u32> = cpu.iter().map(|c| c[0].to_bits()).collect();
+    assert!(
+        distinct.len() > 8 && shadowed > 0,
+        "the reference image is not trivial"
+    );
+}
+
+#[test]
+fn ao_matches_the_cpu_reference() {
+    against_reference(Shading {
+        mode: Mode::Ao,
+        ao_rays: 36,
+        ao_distance: 0.3,
+        seed: 5,
+        ..Shading::default()
+    });
+}
+
+#[test]
+fn shadows_match_the_cpu_reference() {
+    let mut sh = Shading {
+        mode: Mode::Shadows,
+        ..Shading::default()
+    };
+    sh.add_light(Light::Directional {
+        dir: [0.3, 0.5, -1.0],
+        color: [0.8, 0.8, 0.7],
+    })
+    .unwrap();
+    sh.add_light(Light::Point {
+        pos: [0.4, -0.4, 0.9],
+        color: [0.3, 0.2, 0.2],
+    })
+    .unwrap();
+    against_reference(sh);
+}
+
+#[test]
+fn every_mode_is_bit_identical_through_the_distributed_cache() {
+    let gpu = gpu();
+    let (w, h) = (24, 24);
+    let scene = Scene::generated(Generator::Assembly, 20_000, w, h);
+    let model = scene.load_model().unwrap();
+    let cam = scene.camera_or_default(&model);
+    let p = prepare(model);
+    let basis = cam.basis(w, h);
+    for mode in [Mode::Cast, Mode::Shadows, Mode::Ao, Mode::Path] {
+        let sh = Shading {
+            mode,
+            spp: 2,
+            ao_rays: 8,
+            max_depth: 3,
+            ..Shading::default()
+        };
+        let s = Settings {
+            shading: sh,
+            ..Settings::default()
+        };
+        let mut t = p.tracer(&gpu, s).unwrap();
+        let (replicated, rs) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        let o = DcOptions {
+            ranks: 4,
+            rank: 1,
+            cache: CacheSize::parse("1/8").unwrap(),
+            map: CacheMap::Ize,
+        };
+        let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+        let (dc, ds) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        eprintln!(
+            "{mode:?}: {} secondary rays, {} blocks fetched, {} fault rounds",
+            ds.secondary_rays, ds.fetched_blocks, ds.fault_rounds
+        );
+        assert_eq!(rs.secondary_rays, ds.secondary_rays, "{mode:?}");
+        if mode != Mode::Cast {
+            assert!(ds.secondary_rays > 0, "{mode:?} shoots secondary rays");
+        }
+        assert!(ds.fetched_blocks > 0, "{mode:?}: a cold cache fetches");
+        assert!(bits(&replicated) == bits(&dc), "{mode:?}: DC image differs");
+    }
+}
+
+#[test]
+fn same_seed_same_bits_other_seed_other_image() {
+    let scene = Scene::generated(Generator::Rm, 20_000, 24, 24);
+    let model = scene.load_model().unwrap();
+    let cam = scene.camera_or_default(&model);
+    let p = prepare(model);
+    for mode in [Mode::Ao, Mode::Path] {
+        let sh = Shading {
+            mode,
+            spp: 2,
+            ao_rays: 4,
+            seed: 1,
+            ..Shading::default()
+        };
+        let a = shaded(&p, &cam, 24, 24, sh);
+        let b = shaded(&p, &cam, 24, 24, sh);
+        assert!(bits(&a) == bits(&b), "{mode:?}: same seed, different bits");
+        let c = shaded(&p, &cam, 24, 24, Shading { seed: 2, ..sh });
+        assert!(
+            bits(&a) != bits(&c),
+            "{mode:?}: the seed changes the samples"
+        );
+    }
+}
+
+#[test]
+fn culling_and_any_hit_change_costs_not_images() {
+    // The sphere fills part of the view: many primary rays miss its box.
+    let p = prepare(sphere(24, 48, 0.15));
+    let cam = camera();
+    let gpu = gpu();
+    for mode in [Mode::Cast, Mode::Ao] {
+        let sh = Shading {
+            mode,
+            ao_rays: 8,
+            ..Shading::default()
+        };
+        let run = |sh: Shading| {
+            let s = Settings {
+                shading: sh,
+                ..Settings::default()
+            };
+            render(&gpu, &p, &cam, 32, 32, s)
+        };
+        let (a, sa) = run(sh);
+        let (b, sb) = run(Shading { cull: false, ..sh });
+        assert!(bits(&a) == bits(&b), "{mode:?}: culling changed the image");
+        assert!(
+            sa.traced_rays < sb.traced_rays,
+            "{mode:?}: culling skips rays"
+        );
+        if mode == Mode::Ao {
+            let (c, sc) = run(Shading {
+                any_hit: false,
+                ..sh
+            });
+            let rgb = |f: &Frame| f.pixels.iter().map(|p| p.rgb).collect::<Vec<_>>();
+            assert_eq!(rgb(&a), rgb(&c), "any-hit changed the occlusion");
+            assert!(sa.steps < sc.steps, "any-hit rays take fewer steps");
+        }
+    }
+}
+
+#[test]
+fn bad_shading_input_is_a_clear_error() {
+    let dir = TempDir::new("shading-bad");
+    let ply = repo().join("scenes/meshes/bumpy.ply");
+    let out = dir.path("o.png");
+    let scene = |extra: &str| {
+        dir.write(
+            "s.toml",
+            format!("[[mesh]]\nfile = {:?}\n{extra}", ply.display().to_string()),
+        )
+    };
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec!["--mode".into(), "foo".into()], "invalid value 'foo'"),
+        (vec!["--spp".into(), "0".into()], "--spp must be 1..="),
+        (vec!["--ao-rays".into(), "0".into()], "--ao-rays must be"),
+        (
+            vec!["--exposure".into(), "nan".into()],
+            "--exposure must be finite",
+        ),
+    ];
+    let good = scene("");
+    for (args, want) in cases {
+        let mut a: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"render", &good, &"-o", &out];
+        a.extend(args.iter().map(|s| s as &dyn AsRef<std::ffi::OsStr>));
+        let o = dcrt(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} should fail");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    let scenes = [
+        (
+            "[[light]]\ntype = \"point\"\ndirection = [0.0, 0.0, 1.0]\n",
+            "light 1: a point light needs `position`",
+        ),
+        (
+            "[[light]]\ntype = \"directional\"\ndirection = [0.0, 0.0, 0.0]\n",
+            "light 1: direction must be finite and non-zero",
+        ),
+        ("[[light]]\ntype = \"spot\"\n", "unknown variant `spot`"),
+        ("[render]\nmode = \"raster\"\n", "unknown variant `raster`"),
+        ("[render]\nspp = 0\n", "spp must be 1..="),
+    ];
+    for (text, want) in scenes {
+        let s = scene(text);
+        let o = dcrt(&[&"render", &s, &"-o", &out]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{text} should fail");
+        assert!(err.contains(want), "{text}: {err}");
+        assert!(!err.contains("panicked"), "{text}: {err}");
+    }
+    assert!(!exists(&out), "no image is written on bad input");
+}
