@@ -62,6 +62,11 @@ pub fn run(opts: &Options) -> Result<()> {
     // Every rank opens what it needs; then all agree that everyone could, before any
     // collective that a failed rank would never join.
     let opened = open(opts, roles, rank);
+    // Said before anything else: once any rank exits non-zero, mpirun may kill the others
+    // before they print.
+    if let Err(e) = &opened {
+        eprintln!("error: rank {rank}: {e}");
+    }
     let check = match &opened {
         Ok(o) => [
             1,
@@ -75,12 +80,9 @@ pub fn run(opts: &Options) -> Result<()> {
     };
     let mut all = vec![[0u32; 6]; roles.size as usize];
     world.all_gather_into(&check[..], flatten_mut(&mut all));
-    let opened = match opened {
-        Ok(o) => o,
-        Err(e) => {
-            drop(universe);
-            return Err(Error::Invalid(format!("rank {rank}: {e}")));
-        }
+    let Ok(opened) = opened else {
+        drop(universe);
+        std::process::exit(1);
     };
     if let Some(problem) = disagreement(&all, roles) {
         if rank == 0 || problem.0 == rank {
