@@ -498,7 +498,11 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         frames: a.frames,
         trace: a.trace.clone(),
         adapter: a.gpu.adapter.clone(),
-        settings: settings(&a.gpu),
+        settings: Settings {
+            shading: a.shade.apply(Loaded::image_of(&a.scene)?.shading)?,
+            ..settings(&a.gpu)
+        },
+        exposure: a.exposure,
         preset: a.gpu.bvh_preset,
         format,
         cache,

@@ -47,16 +47,18 @@ pub fn to_rgb8(frame: &Frame) -> image::RgbImage {
     to_rgb8_exposed(frame, 0.0)
 }
 
+/// One linear channel times `k` = 2^`exposure`, then sRGB 8 bits. Exposure 0 leaves the value
+/// untouched (no multiply), so PNGs stay as they were.
+pub fn srgb8_exposed(c: f32, exposure: f32, k: f32) -> u8 {
+    srgb8(if exposure == 0.0 { c } else { c * k })
+}
+
 /// Linear colour times 2^exposure (stops), then sRGB.
 pub fn to_rgb8_exposed(frame: &Frame, exposure: f32) -> image::RgbImage {
     let k = exposure.exp2();
     let mut img = image::RgbImage::new(frame.width, frame.height);
     for (p, out) in frame.pixels.iter().zip(img.pixels_mut()) {
-        // Exposure 0 leaves the values untouched (no multiply), so PNGs stay as they were.
-        *out = image::Rgb(
-            p.rgb
-                .map(|c| srgb8(if exposure == 0.0 { c } else { c * k })),
-        );
+        *out = image::Rgb(p.rgb.map(|c| srgb8_exposed(c, exposure, k)));
     }
     img
 }

@@ -294,10 +294,15 @@ impl Loaded {
         (u64::from(crc) << 32) | u64::from(self.block_count())
     }
 
-    /// The image a path renders (size and background) without building or reading the model:
-    /// what the display and the balancer need.
-    pub fn image_of(path: &Path) -> Result<(u32, u32, [f32; 3])> {
-        let from = |l: Loaded| (l.width, l.height, l.background);
+    /// What a path renders (image size, background, shading) without building or reading the
+    /// model: what the display and the balancer need.
+    pub fn image_of(path: &Path) -> Result<ImageOf> {
+        let from = |l: Loaded| ImageOf {
+            width: l.width,
+            height: l.height,
+            background: l.background,
+            shading: l.shading,
+        };
         if path.extension().is_some_and(|e| e == "dcb") {
             return Loaded::from_dcb(path, None).map(from);
         }
@@ -306,8 +311,22 @@ impl Loaded {
             let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
             return Loaded::from_dcb(&dcb, Some(&scene)).map(from);
         }
-        Ok((scene.width, scene.height, scene.background))
+        Ok(ImageOf {
+            width: scene.width,
+            height: scene.height,
+            background: scene.background,
+            shading: scene.shading,
+        })
     }
+}
+
+/// See `Loaded::image_of`.
+#[derive(Clone, Debug)]
+pub struct ImageOf {
+    pub width: u32,
+    pub height: u32,
+    pub background: [f32; 3],
+    pub shading: crate::shading::Shading,
 }
 
 /// How one process runs the distributed cache: `ranks` virtual ranks in one process, rendering

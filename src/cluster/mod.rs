@@ -100,6 +100,8 @@ pub struct Options {
     /// Side of the balancer's large tiles, and of the smallest it splits them into.
     pub tile: u32,
     pub min_tile: u32,
+    /// PNG exposure in stops.
+    pub exposure: f32,
     /// Target size of a pixel message.
     pub message_bytes: usize,
     /// How long any wait (for a message, for the GPU) may last before the job is aborted.

@@ -147,10 +147,10 @@ struct RenderSetup {
 }
 
 fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
-    let (w, h, _) = Loaded::image_of(&opts.input)?;
+    let of = Loaded::image_of(&opts.input)?;
     let image = Image {
-        width: opts.width.unwrap_or(w),
-        height: opts.height.unwrap_or(h),
+        width: opts.width.unwrap_or(of.width),
+        height: opts.height.unwrap_or(of.height),
     };
     check_image_size(image.width, image.height)?;
     let Some(index) = roles.render_index(rank) else {
@@ -390,7 +390,7 @@ fn render_frames(
     } else {
         Wire::Rgb8
     };
-    let mut packer = Packer::new(wire, opts.message_bytes);
+    let mut packer = Packer::new(wire, opts.message_bytes, opts.exposure);
     let start = Instant::now();
     // The display benchmark keeps the first frame's tiles to send again.
     let mut kept: BTreeMap<(u32, u32, u32, u32), Vec<u8>> = BTreeMap::new();
@@ -874,7 +874,7 @@ fn write_frame(opts: &Options, f: u32, buf: FrameBuf, wire: Wire) -> Result<()> 
         }
         Wire::Full => {
             let frame = buf.into_frame();
-            output::write_png(&png, &frame)?;
+            output::write_png_exposed(&png, &frame, opts.exposure)?;
             if let Some(exr) = &opts.exr {
                 output::write_exr(&output::numbered(exr, f, opts.frames), &frame, &opts.aovs)?;
             }

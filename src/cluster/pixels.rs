@@ -6,7 +6,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::layout::Pixel;
 use crate::gpu::tracer::{Frame, Rect};
-use crate::output::srgb8;
+use crate::output::srgb8_exposed;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex};
@@ -27,9 +27,10 @@ impl Wire {
         }
     }
 
-    fn encode(self, p: &Pixel, out: &mut Vec<u8>) {
+    /// `k` is 2^`exposure`, which applies to RGB8 only (whole pixels stay linear).
+    fn encode(self, p: &Pixel, exposure: f32, k: f32, out: &mut Vec<u8>) {
         match self {
-            Wire::Rgb8 => out.extend(p.rgb.map(srgb8)),
+            Wire::Rgb8 => out.extend(p.rgb.map(|c| srgb8_exposed(c, exposure, k))),
             Wire::Full => out.extend_from_slice(bytemuck::bytes_of(p)),
         }
     }
@@ -42,15 +43,18 @@ const RECORD: usize = 16;
 /// of rows.
 pub struct Packer {
     wire: Wire,
+    /// PNG exposure in stops, applied before the sRGB encoding of RGB8 pixels.
+    exposure: f32,
     target: usize,
     frame: u32,
     buf: Vec<u8>,
 }
 
 impl Packer {
-    pub fn new(wire: Wire, target: usize) -> Packer {
+    pub fn new(wire: Wire, target: usize, exposure: f32) -> Packer {
         Packer {
             wire,
+            exposure,
             target: target.max(HEADER + RECORD + 64 * wire.bytes()),
             frame: 0,
             buf: Vec::new(),
@@ -67,8 +71,9 @@ impl Packer {
     /// The wire form of some pixels.
     pub fn encode(&self, pixels: &[Pixel]) -> Vec<u8> {
         let mut out = Vec::with_capacity(pixels.len() * self.wire.bytes());
+        let k = self.exposure.exp2();
         for p in pixels {
-            self.wire.encode(p, &mut out);
+            self.wire.encode(p, self.exposure, k, &mut out);
         }
         out
     }
@@ -318,7 +323,7 @@ mod tests {
     fn pack_and_copy_round_trip() {
         let (w, h) = (70, 53);
         for wire in [Wire::Rgb8, Wire::Full] {
-            let mut packer = Packer::new(wire, 2048);
+            let mut packer = Packer::new(wire, 2048, 0.0);
             let rects = [
                 Rect {
                     x: 0,
@@ -368,7 +373,10 @@ mod tests {
                 }
                 Wire::Rgb8 => {
                     let bytes = frame.into_bytes();
-                    let want: Vec<u8> = expect.iter().flat_map(|p| p.rgb.map(srgb8)).collect();
+                    let want: Vec<u8> = expect
+                        .iter()
+                        .flat_map(|p| p.rgb.map(crate::output::srgb8))
+                        .collect();
                     assert_eq!(bytes, want);
                 }
             }
@@ -377,7 +385,7 @@ mod tests {
 
     #[test]
     fn records_outside_the_frame_are_errors() {
-        let mut packer = Packer::new(Wire::Rgb8, 4096);
+        let mut packer = Packer::new(Wire::Rgb8, 4096, 0.0);
         let r = Rect {
             x: 8,
             y: 8,

@@ -399,3 +399,49 @@ fn virtual_ranks_are_refused_under_mpirun() {
     assert!(!out.status.success());
     assert!(stderr(&out).contains("--virtual-ranks is for one process"));
 }
+
+/// Shading modes, samples and exposure under mpirun (distributed cache, 4 ranks) give the
+/// single-process image: secondary rays fault and resume on the render ranks like primary ones.
+#[test]
+fn shading_modes_under_mpirun_match_one_process() {
+    let fx = Fixture::new("cl-modes");
+    let dcb = fx.dcb.to_str().unwrap();
+    let cast = image::open(fx.frame("single", "png", 0)).unwrap().to_rgb8();
+    for mode in ["shadows", "ao", "path"] {
+        let opts = [
+            "--mode",
+            mode,
+            "--spp",
+            "2",
+            "--exposure",
+            "0.5",
+            "--ao-rays",
+            "8",
+        ];
+        let single = fx.dir.path(&format!("{mode}-single.png"));
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"render", &dcb, &"-o", &single];
+        for o in &opts {
+            args.push(o);
+        }
+        let out = dcrt(&args);
+        assert!(out.status.success(), "{mode}: {}", stderr(&out));
+        let multi = fx.dir.path(&format!("{mode}-multi.png"));
+        let mut margs = vec![
+            "render",
+            dcb,
+            "-o",
+            multi.to_str().unwrap(),
+            "--cache",
+            "1/8",
+        ];
+        margs.extend(opts);
+        let out = mpirun(4, SHARED, &margs, &[], 120);
+        let err = stderr(&out);
+        assert!(out.status.success(), "{mode}: {err}");
+        assert!(fetched(&err) > 0, "{mode}: the cache fetched nothing");
+        let a = image::open(&single).unwrap().to_rgb8();
+        let b = image::open(&multi).unwrap().to_rgb8();
+        assert!(a == b, "{mode}: the mpirun image differs");
+        assert!(b != cast, "{mode}: the mode was not applied");
+    }
+}
