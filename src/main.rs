@@ -498,9 +498,14 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         frames: a.frames,
         trace: a.trace.clone(),
         adapter: a.gpu.adapter.clone(),
-        settings: Settings {
-            shading: a.shade.apply(Loaded::image_of(&a.scene)?.shading)?,
-            ..settings(&a.gpu)
+        settings: settings(&a.gpu),
+        shade: {
+            let shade = a.shade.clone();
+            dcrt::cluster::ShadeWith(std::sync::Arc::new(move |base| {
+                shade
+                    .apply(base)
+                    .map_err(|e| dcrt::Error::Invalid(e.to_string()))
+            }))
         },
         exposure: a.exposure,
         preset: a.gpu.bvh_preset,

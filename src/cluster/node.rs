@@ -17,7 +17,7 @@ use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
 use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::{Error, Result};
-use crate::gpu::tracer::{DcSetup, FrameStats, Rect, Tracer, ms};
+use crate::gpu::tracer::{DcSetup, FrameStats, Rect, Settings, Tracer, ms};
 use crate::gpu::{Gpu, Idle};
 use crate::output;
 use crate::render::Loaded;
@@ -144,6 +144,7 @@ struct RenderSetup {
     gpu: Gpu,
     /// With a distributed cache: this rank's place, its resident blocks and the cache.
     dc: Option<(Ranks, Vec<u32>, CacheSize, CacheMap)>,
+    settings: Settings,
 }
 
 fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
@@ -153,6 +154,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
         height: opts.height.unwrap_or(of.height),
     };
     check_image_size(image.width, image.height)?;
+    let shading = (opts.shade.0)(of.shading)?;
     let Some(index) = roles.render_index(rank) else {
         return Ok(Opened {
             image,
@@ -177,7 +179,15 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     Ok(Opened {
         image,
         fingerprint: loaded.fingerprint(),
-        role: Role::Render(Box::new(RenderSetup { loaded, gpu, dc })),
+        role: Role::Render(Box::new(RenderSetup {
+            loaded,
+            gpu,
+            dc,
+            settings: Settings {
+                shading,
+                ..opts.settings
+            },
+        })),
     })
 }
 
@@ -301,7 +311,12 @@ fn render(
     opts: &Options,
     setup: RenderSetup,
 ) -> Result<()> {
-    let RenderSetup { loaded, gpu, dc } = setup;
+    let RenderSetup {
+        loaded,
+        gpu,
+        dc,
+        settings,
+    } = setup;
     let format = loaded.format();
     let bw = format.words() as usize;
     let mut tracer: Tracer<'_> = match dc {
@@ -310,7 +325,7 @@ fn render(
                 "rank {rank} (render): replicated, {:.1} MiB of blocks",
                 mib(loaded.model_bytes())
             );
-            loaded.tracer(&gpu, opts.settings, None)?
+            loaded.tracer(&gpu, settings, None)?
         }
         Some((ranks, resident, size, map)) => {
             let owned = ranks.owned(loaded.block_count()) as usize;
@@ -340,10 +355,7 @@ fn render(
             };
             // From here the window exists, and freeing it is collective: an error must abort
             // the job rather than unwind into a free the other ranks never join.
-            or_abort(
-                rank,
-                loaded.dc_tracer(&gpu, opts.settings, &resident, setup),
-            )
+            or_abort(rank, loaded.dc_tracer(&gpu, settings, &resident, setup))
         }
     };
     // While the GPU works, keep MPI progressing: over TCP a passive Get from another rank is
