@@ -361,6 +361,14 @@ fn render(a: RenderArgs) -> Result<()> {
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
     }
     let format = Format::new(a.gpu.block_size)?;
+    // Checked in one process too, so that a typo is not found only on the cluster.
+    let c = &a.cluster;
+    if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
+        bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
+    }
+    if c.timeout == 0 {
+        bail!("--timeout must be at least 1 second");
+    }
     if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
         return render_cluster(&a, format, k);
     }
@@ -478,12 +486,6 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
     }
     let c = &a.cluster;
-    if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
-        bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
-    }
-    if c.timeout == 0 {
-        bail!("--timeout must be at least 1 second");
-    }
     let cache = match &a.dc.cache {
         Some(s) => Some((CacheSize::parse(s)?, a.dc.cache_map)),
         None => None,

@@ -181,4 +181,9 @@ fn bad_command_line_values() {
     let missing_dir = d.path("no/such/dir/x.exr");
     let m = missing_dir.to_str().unwrap();
     fails(&d, &s, &["--exr", m], &["does not exist"]);
+    // Cluster options are checked in one process too.
+    fails(&d, &s, &["--copy-threads", "0"], &["--copy-threads"]);
+    fails(&d, &s, &["--tile", "0"], &["--tile"]);
+    fails(&d, &s, &["--timeout", "0"], &["--timeout"]);
+    fails(&d, &s, &["--display-bench"], &["mpirun"]);
 }
