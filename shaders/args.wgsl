@@ -1,5 +1,6 @@
 // Between trace rounds: turns the live count just produced into indirect dispatch arguments and
 // clears the other counter, which the next round appends to.
+#import counter
 
 @group(1) @binding(0) var<storage, read_write> produced: Counter;
 @group(1) @binding(1) var<storage, read_write> consumed: Counter;

@@ -3,6 +3,11 @@
 // Shadows and ambient occlusion end here; a path either ends (sky, depth limit, Russian
 // roulette) or moves to its new hit for the next wave. An ended path adds its radiance to the
 // pixel's sum.
+#import params
+#import ray
+#import scene
+#import shading
+#import sampling
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;

@@ -1,7 +1,14 @@
 // Layout probe (tests only): one invocation reads every member of every host-written struct
 // through the same accessors the kernels use and writes it out as raw words, in declaration
 // order, so the host can compare each member with what it wrote. `params.pad0` nodes,
-// `params.pad1` triangles, two ray states, `params.mesh_count` meshes and the shading parameters are probed.
+// `params.pad1` triangles, two ray states, `params.mesh_count` meshes and the shading parameters
+// are probed.
+#import params
+#import ray
+#import blocks
+#import dc
+#import scene
+#import shading
 
 @group(1) @binding(0) var<storage, read> probe_rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> out: array<u32>;
@@ -75,7 +82,7 @@ fn main() {
     put(s.mode); put(s.fan); put(s.ao_rays); putf(s.ao_distance);
     put(s.max_depth); put(s.rr_depth); put(s.light_count); put(s.offset_mode);
     putf(s.epsilon); putf(s.ambient); put(s.any_hit); put(s.pad1);
-    for (var i = 0u; i < 4u; i++) {
+    for (var i = 0u; i < MAX_LIGHTS; i++) {
         put4(s.lights[i].pos);
         put4(s.lights[i].color);
     }

@@ -1,14 +1,17 @@
 // Ray generation for one batch of 8x8 tiles: one invocation per ray, pixel centres exactly as
-// DESIGN.md section 7 defines them (jittered by the sampler when JITTER is set). Valid rays are
-// appended to the live list; with CULL, a ray that misses the (padded) root box is done at once
+// docs/ARCHITECTURE.md (Cameras and rays) defines them (jittered by the sampler when JITTER is
+// set). Valid rays are appended to the live list; with CULL, a ray that misses the (padded) root box is done at once
 // and skips traversal: its result, a miss, is what traversal would give.
+#import params
+#import ray
+#import tiles
+#import queue
+#import blocks
+#import dc
+#import intersect
+#import sampling
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
-@group(1) @binding(1) var<storage, read_write> live_out: array<u32>;
-@group(1) @binding(2) var<storage, read_write> counter_out: Counter;
-
-var<workgroup> wg_count: atomic<u32>;
-var<workgroup> wg_base: u32;
 
 fn finite3(v: vec3<f32>) -> bool {
     // Exponent bits all set means inf or NaN; checked on the bits, not with IEEE comparisons.
@@ -28,12 +31,10 @@ fn hits_root(o: vec3<f32>, d: vec3<f32>) -> bool {
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let i = gid.x;
     var live = false;
-    var slot = 0u;
     if i < params.batch_rays {
-        let tile = params.first_tile + i / (TILE * TILE);
-        let local = i % (TILE * TILE);
-        let lx = (tile % params.tiles_x) * TILE + local % TILE;
-        let ly = (tile / params.tiles_x) * TILE + local / TILE;
+        let l = tile_pixel(i);
+        let lx = l.x;
+        let ly = l.y;
         let px = params.rect_x + lx;
         let py = params.rect_y + ly;
         var j = vec2(0.5, 0.5);
@@ -44,8 +45,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let sy = 1.0 - 2.0 * (f32(py) + j.y) / f32(params.height);
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
-        var r = RayState(o.x, o.y, o.z, FAR, d.x, d.y, d.z, NONE, 0u, 0u, LIVE, 0u, 0u, NONE, NONE,
-                         0.0, 0.0, 0.0, NONE, 0u);
+        var r = new_ray(o, d, FAR, LIVE, 0u);
         if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else if (params.flags & CULL) != 0u && !hits_root(o, d) {
@@ -54,17 +54,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             live = true;
         }
         rays[i] = r;
-        if live {
-            slot = atomicAdd(&wg_count, 1u);
-        }
     }
-    // One global atomic per workgroup instead of one per ray.
-    workgroupBarrier();
-    if lid == 0u {
-        wg_base = atomicAdd(&counter_out.count, atomicLoad(&wg_count));
-    }
-    let base = workgroupUniformLoad(&wg_base);
-    if live {
-        live_out[base + slot] = i;
-    }
+    append_live(live, lid, i);
 }

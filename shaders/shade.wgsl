@@ -3,6 +3,11 @@
 // (spawn and gather follow). The first pass of a render also writes the AOVs of the EXR contract
 // (depth along the normalized ray, primitive id, unit geometric normal). Colours are summed over
 // passes; the host divides by the sample count.
+#import params
+#import ray
+#import scene
+#import shading
+#import tiles
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
@@ -44,10 +49,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             path.alive = 1u;
             path.depth = 0u;
             path.albedo = albedo;
-            let tile = params.first_tile + i / (TILE * TILE);
-            let local = i % (TILE * TILE);
-            let px = params.rect_x + (tile % params.tiles_x) * TILE + local % TILE;
-            let py = params.rect_y + (tile / params.tiles_x) * TILE + local / TILE;
+            let l = tile_pixel(i);
+            let px = params.rect_x + l.x;
+            let py = params.rect_y + l.y;
             path.pixel = py * params.width + px;
             path.tp = vec3(1.0);
             path.l = vec3(0.0);

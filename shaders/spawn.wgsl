@@ -3,16 +3,17 @@
 // path: ray 0 goes to the sun (when on), the last is the cosine-weighted bounce. Shadow and
 // occlusion rays stop at any hit. Rays not needed (dead path, light behind the surface) are
 // OUTSIDE; the rest are appended to the live list and traced by the same rounds as primary rays.
+#import params
+#import ray
+#import shading
+#import sampling
+#import offset
+#import queue
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
-@group(1) @binding(4) var<storage, read_write> live_out: array<u32>;
-@group(1) @binding(5) var<storage, read_write> counter_out: Counter;
-
-var<workgroup> wg_count: atomic<u32>;
-var<workgroup> wg_base: u32;
 
 fn spawn_origin(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     if shading.offset_mode == 0u {
@@ -26,13 +27,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     let j = gid.x;
     let fan = shading.fan;
     var live = false;
-    var slot = 0u;
     if j < params.batch_rays * fan {
         let i = j / fan;
         let k = j - i * fan;
         let path = paths[i];
-        var r = RayState(0.0, 0.0, 0.0, FAR, 0.0, 0.0, 1.0, NONE, 0u, 0u, OUTSIDE, 0u, 0u, NONE,
-                         NONE, 0.0, 0.0, 0.0, NONE, 0u);
+        var r = new_ray(vec3(0.0), vec3(0.0, 0.0, 1.0), FAR, OUTSIDE, 0u);
         if path.alive != 0u {
             let n = path.n;
             var dir = n;
@@ -64,22 +63,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             if go {
                 let o = spawn_origin(path.pos, n);
-                r = RayState(o.x, o.y, o.z, tmax, dir.x, dir.y, dir.z, NONE, 0u, 0u, LIVE, 0u, 0u,
-                             NONE, NONE, 0.0, 0.0, 0.0, NONE, flags);
+                r = new_ray(o, dir, tmax, LIVE, flags);
                 live = true;
             }
         }
         rays[j] = r;
-        if live {
-            slot = atomicAdd(&wg_count, 1u);
-        }
     }
-    workgroupBarrier();
-    if lid == 0u {
-        wg_base = atomicAdd(&counter_out.count, atomicLoad(&wg_count));
-    }
-    let base = workgroupUniformLoad(&wg_base);
-    if live {
-        live_out[base + slot] = j;
-    }
+    append_live(live, lid, j);
 }

@@ -3,14 +3,18 @@
 // come near that), then saves its state. A ray that needs a block its GPU lacks records a fault
 // and suspends where it stands; it repeats that step once the block is in the cache. Rays not
 // done are appended to the next live list.
+#import params
+#import ray
+#import blocks
+#import dc
+#import intersect
+#import queue
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 // Per ray `stack_size` entries of (node, entry distance bits).
 @group(1) @binding(1) var<storage, read_write> stacks: array<vec2<u32>>;
 @group(1) @binding(2) var<storage, read> live_in: array<u32>;
 @group(1) @binding(3) var<storage, read> counter_in: array<u32, 4>;
-@group(1) @binding(4) var<storage, read_write> live_out: array<u32>;
-@group(1) @binding(5) var<storage, read_write> counter_out: Counter;
 // Mirrors gpu::layout::Stats.
 struct Stats {
     steps: atomic<u32>,
@@ -30,8 +34,6 @@ struct Stats {
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 
-var<workgroup> wg_count: atomic<u32>;
-var<workgroup> wg_base: u32;
 var<workgroup> wg_steps: atomic<u32>;
 var<workgroup> wg_tris: atomic<u32>;
 var<workgroup> wg_suspended: atomic<u32>;
@@ -236,14 +238,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             atomicAdd(&wg_misses, dc_misses);
         }
     }
-    var slot = 0u;
-    if again {
-        slot = atomicAdd(&wg_count, 1u);
-    }
-    workgroupBarrier();
+    // The barrier in append_live also orders the workgroup's sums before they are read.
+    append_live(again, lid, ray_index);
     if lid == 0u {
-        let n = atomicLoad(&wg_count);
-        wg_base = atomicAdd(&counter_out.count, n);
         atomicAdd(&stats.steps, atomicLoad(&wg_steps));
         atomicAdd(&stats.tri_tests, atomicLoad(&wg_tris));
         atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
@@ -254,9 +251,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             atomicAdd(&stats.hits, atomicLoad(&wg_hits));
             atomicAdd(&stats.misses, atomicLoad(&wg_misses));
         }
-    }
-    let base = workgroupUniformLoad(&wg_base);
-    if again {
-        live_out[base + slot] = ray_index;
     }
 }

@@ -12,6 +12,7 @@ pub mod cluster;
 pub mod dc;
 pub mod error;
 pub mod gpu;
+pub mod mirror;
 pub mod output;
 pub mod render;
 pub mod scene;

@@ -1,7 +1,8 @@
-//! The distributed cache (DESIGN.md sections 2 and 3, chapter 5.3): block ownership, the
-//! direct-mapped cache mapping, where borrowed blocks come from, and what each frame's faults
-//! cost.
+//! The distributed cache (docs/ARCHITECTURE.md, The distributed cache; chapter 5.3): block
+//! ownership and the rows a rank's GPU holds, the direct-mapped cache mapping, the host's cache
+//! policy between rounds, where borrowed blocks come from, and what each frame's faults cost.
 
+pub mod policy;
 pub mod source;
 pub mod trace;
 
@@ -53,9 +54,34 @@ impl Ranks {
     pub fn resident(&self, k: u32) -> bool {
         k == 0 || self.owns(k)
     }
+
+    // The resident rows of a rank's GPU, for a model of `count` blocks: its own blocks by slot,
+    // then the replicated root block (block 0) unless the rank owns it. The cache lines follow.
+
+    /// Resident rows: owned blocks, plus the root when borrowed.
+    pub fn resident_rows(&self, count: u32) -> u32 {
+        self.owned(count) + u32::from(!self.owns(0))
+    }
+
+    /// The row of the root block.
+    pub fn root_row(&self, count: u32) -> u32 {
+        if self.owns(0) { 0 } else { self.owned(count) }
+    }
+
+    /// The row of block `k` without the cache: its slot when owned, the root's row, or `None`.
+    pub fn resident_row(&self, k: u32, count: u32) -> Option<u32> {
+        if self.owns(k) {
+            Some(self.slot(k))
+        } else if k == 0 {
+            Some(self.root_row(count))
+        } else {
+            None
+        }
+    }
 }
 
-/// The cache line of a block the rank does not own (the GPU's `cache_line` in common.wgsl).
+/// The cache line of a block the rank does not own. Mirrors `cache_line` in
+/// shaders/shared/dc.wgsl.
 pub fn cache_line(map: CacheMap, ranks: Ranks, lines: u32, k: u32) -> u32 {
     match map {
         CacheMap::Ize => {
@@ -189,6 +215,33 @@ mod tests {
         assert_eq!(Ranks::new(3, 0).unwrap().owned(10), 4); // 0, 3, 6, 9
         assert!(r.resident(0) && r.resident(1) && !r.resident(2));
         assert!(Ranks::new(2, 2).is_err());
+    }
+
+    #[test]
+    fn resident_rows_are_own_blocks_then_the_root() {
+        // Rank 1 of 3, 10 blocks: owns 1, 4, 7 at rows 0..3; the root follows at row 3.
+        let r = Ranks::new(3, 1).unwrap();
+        assert_eq!(r.resident_rows(10), 4);
+        assert_eq!(r.root_row(10), 3);
+        let rows: Vec<Option<u32>> = (0..10).map(|k| r.resident_row(k, 10)).collect();
+        let want = [
+            Some(3),
+            Some(0),
+            None,
+            None,
+            Some(1),
+            None,
+            None,
+            Some(2),
+            None,
+            None,
+        ];
+        assert_eq!(rows, want);
+        // Rank 0 owns the root at row 0 and holds no extra row.
+        let r0 = Ranks::new(3, 0).unwrap();
+        assert_eq!((r0.resident_rows(10), r0.root_row(10)), (4, 0));
+        assert_eq!(r0.resident_row(0, 10), Some(0));
+        assert_eq!(r0.resident_row(9, 10), Some(3));
     }
 
     #[test]

@@ -1,10 +1,11 @@
 //! Host mirrors of the structs the GPU reads and writes. Each is `#[repr(C)]` + `Pod` and must
-//! match `shaders/common.wgsl` (or the kernel named) member by member; the layout probe test
-//! (`tests/gpu.rs`) reads every member back through a shader.
+//! match the WGSL struct of the same name (in the `shaders/` file named) member by member: the
+//! layout tests (`tests/all/layout.rs`) compare every member's offset with naga's layout of the
+//! composed kernels, and the layout probe reads every member back through a shader.
 
 use bytemuck::{Pod, Zeroable};
 
-/// `Params` in `shaders/common.wgsl`: the uniform of every kernel.
+/// `Params` in `shaders/shared/params.wgsl`: the uniform of every kernel that reads the scene.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Params {
@@ -61,7 +62,7 @@ pub mod flags {
     pub const ANY_HIT: u32 = 1;
 }
 
-/// `RayState` in `shaders/common.wgsl`.
+/// `RayState` in `shaders/shared/ray.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct RayState {
@@ -94,7 +95,7 @@ pub mod status {
     pub const OVERFLOW: u32 = 3;
 }
 
-/// `MeshInfo` in `shaders/common.wgsl`.
+/// `MeshInfo` in `shaders/shared/scene.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MeshInfo {
@@ -104,7 +105,7 @@ pub struct MeshInfo {
 }
 const _: () = assert!(std::mem::size_of::<MeshInfo>() == 32);
 
-/// `Pixel` in `shaders/common.wgsl`: the shade kernel's output for one ray.
+/// `Pixel` in `shaders/shared/shading.wgsl`: the shade kernel's output for one ray.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Pixel {
@@ -117,7 +118,7 @@ pub struct Pixel {
 }
 const _: () = assert!(std::mem::size_of::<Pixel>() == 32);
 
-/// `Counter` in `shaders/common.wgsl`: a live-ray count and the indirect dispatch arguments of
+/// `Counter` in `shaders/shared/counter.wgsl`: a live-ray count and the indirect dispatch arguments of
 /// the round that consumes it (at byte offset 4).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -146,7 +147,7 @@ pub struct Stats {
 }
 const _: () = assert!(std::mem::size_of::<Stats>() == 48);
 
-/// `Faults` in `shaders/common.wgsl`, before its list of faulted blocks.
+/// `Faults` in `shaders/shared/dc.wgsl`, before its list of faulted blocks.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct FaultHeader {
@@ -157,7 +158,7 @@ pub struct FaultHeader {
     pub pad: [u32; 2],
 }
 
-/// `Light` in `shaders/common.wgsl`. `pos[3]`: 0 directional (`pos` the unit direction towards
+/// `Light` in `shaders/shared/shading.wgsl`. `pos[3]`: 0 directional (`pos` the unit direction towards
 /// the light), 1 point (`pos` its position).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -166,10 +167,10 @@ pub struct Light {
     pub color: [f32; 4],
 }
 
-/// Lights a pipeline can take (the GPU array's length).
+/// Lights a pipeline can take (`MAX_LIGHTS` in `shaders/shared/shading.wgsl`).
 pub const MAX_LIGHTS: usize = 4;
 
-/// `ShadeParams` in `shaders/common.wgsl`: what the shade, spawn and gather kernels read.
+/// `ShadeParams` in `shaders/shared/shading.wgsl`: what the shade, spawn and gather kernels read.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct ShadeParams {
@@ -197,5 +198,63 @@ pub struct ShadeParams {
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 224);
 
 pub const NONE: u32 = u32::MAX;
-/// The kernels' finite stand-in for an unbounded ray (`FAR` in `shaders/common.wgsl`).
+/// The kernels' finite stand-in for an unbounded ray (`FAR` in `shaders/shared/ray.wgsl`):
+/// finite, because WGSL promises nothing for infinities.
 pub const FAR: f32 = 3.0e38;
+
+/// `Path` in `shaders/shared/shading.wgsl`: a pixel's sample between waves of secondary rays.
+/// Only the GPU reads and writes it; the host sizes its buffer and the probe tests read it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Path {
+    pub pos: [f32; 3],
+    pub alive: u32,
+    /// Geometric normal facing the incoming ray.
+    pub n: [f32; 3],
+    pub depth: u32,
+    pub albedo: [f32; 3],
+    /// `y * width + x`: keys the sampler.
+    pub pixel: u32,
+    /// Throughput.
+    pub tp: [f32; 3],
+    pub pad0: u32,
+    /// Radiance gathered so far.
+    pub l: [f32; 3],
+    pub pad1: u32,
+}
+const _: () = assert!(std::mem::size_of::<Path>() == 80);
+
+/// What the host reads back after each batch of trace rounds, copied together into one
+/// buffer: the live counter, the trace statistics, the rounds' two GPU timestamps and the live
+/// count the batch's first round started with.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RoundReadback {
+    pub counter: Counter,
+    pub stats: Stats,
+    pub timestamps: [u64; 2],
+    pub started: u32,
+    pub pad: [u32; 3],
+}
+
+/// `MirrorCase` in `shaders/mirror.wgsl` (tests): inputs of the shared functions with CPU twins.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MirrorCase {
+    pub p: [f32; 4],
+    pub n: [f32; 4],
+    pub u: [f32; 4],
+    /// `hash` input, then `sample2`'s pixel, dimension and index.
+    pub words: [u32; 4],
+}
+
+/// `MirrorResult` in `shaders/mirror.wgsl` (tests): what the GPU computed for one case.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MirrorResult {
+    pub offset: [f32; 4],
+    pub dir: [f32; 4],
+    pub sample: [f32; 4],
+    /// `hash`, then `tile_pixel` of the case's index (x, y).
+    pub words: [u32; 4],
+}

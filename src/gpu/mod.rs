@@ -1,8 +1,15 @@
 //! The GPU: adapter choice, device set-up with the adapter's own limits, and the tracer that runs
-//! the WGSL kernels.
+//! the WGSL kernels (docs/ARCHITECTURE.md, The GPU side).
 
+mod batch;
+pub mod compose;
+mod frame;
+mod kernels;
 pub mod layout;
+pub mod probe;
+mod rounds;
 pub mod shaders;
+mod store;
 pub mod tracer;
 
 use crate::error::{Error, Result};
@@ -184,6 +191,29 @@ impl Gpu {
     /// A one-line description: name, type, backend, driver.
     pub fn describe(&self) -> String {
         describe(&self.info)
+    }
+
+    /// A buffer of at least 16 bytes (wgpu refuses empty bindings).
+    pub fn buffer(&self, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(16),
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// The largest storage buffer the adapter can bind.
+    pub fn storage_limit(&self) -> u64 {
+        self.limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size)
+    }
+
+    /// Writes one value at the start of `buffer`.
+    pub fn write<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer, value: &T) {
+        self.queue
+            .write_buffer(buffer, 0, bytemuck::bytes_of(value));
     }
 
     /// Reads `size` bytes of `buffer` from `offset` (which must allow COPY_SRC).

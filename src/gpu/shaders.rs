@@ -1,13 +1,12 @@
-//! WGSL sources. WGSL has no include: each kernel is `common.wgsl`, then the block storage
-//! (`store_texture.wgsl` or `store_buffer.wgsl`), then the kernel file.
-
-pub const COMMON: &str = include_str!("../../shaders/common.wgsl");
+//! The WGSL kernels as `build.rs` composed and validated them (docs/ARCHITECTURE.md, Shaders):
+//! each kernel's text, its bindings and pipeline constants as naga reflects them, and the layout
+//! of every WGSL struct (checked against the host structs by the layout tests).
 
 /// Where the GPU keeps blocks; both give the kernels `fn texel(block, t) -> vec4<u32>`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Store {
-    /// An `Rgba32Uint` 2D array texture, one block per row (DESIGN.md section 3).
+    /// An `Rgba32Uint` 2D array texture, one block per row (docs/ARCHITECTURE.md, Block store).
     #[default]
     Texture,
     /// One storage buffer (bounded by the adapter's storage binding size).
@@ -17,43 +16,84 @@ pub enum Store {
 impl Store {
     pub const ALL: [Store; 2] = [Store::Texture, Store::Buffer];
 
-    fn source(self) -> &'static str {
+    /// The shared module `#import store` names in this build.
+    pub fn module(self) -> &'static str {
         match self {
-            Store::Texture => include_str!("../../shaders/store_texture.wgsl"),
-            Store::Buffer => include_str!("../../shaders/store_buffer.wgsl"),
+            Store::Texture => "store_texture",
+            Store::Buffer => "store_buffer",
         }
     }
 }
 
-/// (name, kernel source without the prelude).
-pub const KERNELS: &[(&str, &str)] = &[
-    ("raygen", include_str!("../../shaders/raygen.wgsl")),
-    ("trace", include_str!("../../shaders/trace.wgsl")),
-    ("args", include_str!("../../shaders/args.wgsl")),
-    ("shade", include_str!("../../shaders/shade.wgsl")),
-    ("spawn", include_str!("../../shaders/spawn.wgsl")),
-    ("gather", include_str!("../../shaders/gather.wgsl")),
-    ("probe", include_str!("../../shaders/probe.wgsl")),
-];
-
-/// The full source of kernel `name`.
-pub fn source(name: &str, store: Store) -> String {
-    let (_, body) = KERNELS
-        .iter()
-        .find(|(n, _)| *n == name)
-        .unwrap_or_else(|| panic!("no kernel named {name}"));
-    format!("{COMMON}\n{}\n{body}", store.source())
+/// What a binding holds, as the host must declare it in the bind group layout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BindingKind {
+    Uniform,
+    Storage {
+        read_only: bool,
+    },
+    /// `texture_2d_array<u32>`.
+    UintTexture2dArray,
 }
 
-/// Parses and validates a kernel with naga, as the GPU driver's front end would.
-pub fn validate(name: &str, store: Store) -> Result<(), String> {
-    let src = source(name, store);
-    let module = naga::front::wgsl::parse_str(&src).map_err(|e| e.emit_to_string(&src))?;
-    naga::valid::Validator::new(
-        naga::valid::ValidationFlags::all(),
-        naga::valid::Capabilities::default(),
-    )
-    .validate(&module)
-    .map_err(|e| e.emit_to_string(&src))?;
-    Ok(())
+/// One `@group(g) @binding(b) var name` of a kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BindingInfo {
+    pub group: u32,
+    pub binding: u32,
+    /// The WGSL variable's name: the host binds resources by it.
+    pub name: &'static str,
+    pub kind: BindingKind,
+}
+
+/// A composed kernel for one block store.
+#[derive(Clone, Copy, Debug)]
+pub struct KernelInfo {
+    /// The kernel's file name without `.wgsl`; its entry point is `main`.
+    pub name: &'static str,
+    pub store: Store,
+    /// The composed WGSL (shared modules first).
+    pub source: &'static str,
+    /// Sorted by (group, binding).
+    pub bindings: &'static [BindingInfo],
+    /// The pipeline-overridable constants it declares.
+    pub overrides: &'static [&'static str],
+}
+
+/// A WGSL struct's size and member offsets, as naga lays it out.
+#[derive(Clone, Copy, Debug)]
+pub struct StructInfo {
+    pub name: &'static str,
+    pub size: u32,
+    pub members: &'static [(&'static str, u32)],
+}
+
+impl StructInfo {
+    /// The offset of member `name`; panics when there is none (a test names a member the WGSL
+    /// struct lacks).
+    pub fn offset(&self, name: &str) -> u32 {
+        self.members
+            .iter()
+            .find(|(m, _)| *m == name)
+            .unwrap_or_else(|| panic!("WGSL struct {} has no member {name}", self.name))
+            .1
+    }
+}
+
+include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
+
+/// The kernel `name` composed for `store`.
+pub fn kernel(name: &str, store: Store) -> &'static KernelInfo {
+    KERNELS
+        .iter()
+        .find(|k| k.name == name && k.store == store)
+        .unwrap_or_else(|| panic!("no kernel named {name}"))
+}
+
+/// The layout of WGSL struct `name`.
+pub fn wgsl_struct(name: &str) -> &'static StructInfo {
+    STRUCTS
+        .iter()
+        .find(|s| s.name == name)
+        .unwrap_or_else(|| panic!("no WGSL struct named {name}"))
 }

@@ -1,9 +1,11 @@
 //! CPU reference for the `shadows` and `ao` modes at one sample per pixel (pixel centres): the
 //! f64 reference tracer for visibility, and the GPU's own sampler, offset and hemisphere mapping
-//! (`crate::shading`), so GPU and CPU shoot the same secondary rays up to float rounding.
+//! (`crate::mirror`), so GPU and CPU shoot the same secondary rays up to float rounding.
 
+use crate::mirror::offset::offset_ray;
+use crate::mirror::sampling::{cosine_dir, sample2};
 use crate::scene::{CameraBasis, Model};
-use crate::shading::{Light, Mode, Offset, Shading, cosine_dir, offset_ray, sample2};
+use crate::shading::{Light, Mode, Offset, Shading};
 use crate::trace::cpu::{Ray, Reference};
 use rayon::prelude::*;
 

@@ -1,10 +1,17 @@
-//! Layout probe: every member of every struct the host writes for the GPU is read back through a
-//! shader, using the same accessors as the kernels, and compared word by word.
+//! Host and WGSL structs agree: every member's offset and every struct's size against naga's
+//! layout of the composed kernels (no GPU needed), and the layout probe, which reads every member
+//! of every struct the host writes back through a shader, using the same accessors as the
+//! kernels, and compares it word by word.
 
 use crate::common::*;
-use dcrt::gpu::layout::{Light, MeshInfo, Params, RayState, ShadeParams};
+use dcrt::gpu::layout::{
+    Counter, FaultHeader, Light, MeshInfo, MirrorCase, MirrorResult, Params, Path, Pixel, RayState,
+    ShadeParams, Stats,
+};
+use dcrt::gpu::shaders::wgsl_struct;
 use dcrt::gpu::tracer::Settings;
 use dcrt::scene::Model;
+use std::mem::{offset_of, size_of};
 
 fn words<T: bytemuck::Pod>(v: &T) -> Vec<u32> {
     bytemuck::cast_slice(bytemuck::bytes_of(v)).to_vec()
@@ -55,6 +62,16 @@ fn every_member_reads_back_through_the_shader() {
         seed: 113,
         flags: 114,
         spp: 115,
+        // A replicated tracer's `locate` reads none of these: they can take any value.
+        dc_ranks: 116,
+        dc_rank: 117,
+        dc_lines: 118,
+        dc_map: 119,
+        dc_cache_row: 120,
+        dc_root_row: 121,
+        dc_fault_cap: 122,
+        pad2: 123,
+        pad3: 124,
         ..base
     };
     let g = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.25) };
@@ -139,4 +156,104 @@ fn every_member_reads_back_through_the_shader() {
     for (i, (a, b)) in out.iter().zip(&expect).enumerate() {
         assert_eq!(a, b, "word {i} differs");
     }
+}
+
+/// Checks a host struct against the WGSL struct of the same layout: equal sizes, and each WGSL
+/// member (named in the list) at the host offset given; every WGSL member must be listed.
+macro_rules! same_layout {
+    ($host:ty, $wgsl:literal, { $($m:literal => $f:ident $(+ $k:literal)?),* $(,)? }) => {{
+        let w = wgsl_struct($wgsl);
+        let listed = [$($m),*];
+        $(
+            assert_eq!(
+                w.offset($m) as usize,
+                offset_of!($host, $f) $(+ $k)?,
+                "{}.{}: WGSL offset against host {}.{}",
+                $wgsl, $m, stringify!($host), stringify!($f)
+            );
+        )*
+        for (m, _) in w.members {
+            assert!(listed.contains(m), "WGSL {}.{} has no host counterpart", $wgsl, m);
+        }
+        w
+    }};
+}
+
+#[test]
+fn host_structs_match_naga_layouts() {
+    let sized = |w: &dcrt::gpu::shaders::StructInfo, host: usize| {
+        assert_eq!(w.size as usize, host, "size of WGSL {}", w.name);
+    };
+    let w = same_layout!(Params, "Params", {
+        "origin" => origin, "forward" => forward, "right" => right, "up" => up,
+        "background" => background, "width" => width, "height" => height,
+        "tiles_x" => tiles_x, "first_tile" => first_tile, "batch_rays" => batch_rays,
+        "step_budget" => step_budget, "stack_size" => stack_size, "mesh_count" => mesh_count,
+        "node_blocks" => node_blocks, "dc_ranks" => dc_ranks, "dc_rank" => dc_rank,
+        "dc_lines" => dc_lines, "dc_map" => dc_map, "dc_cache_row" => dc_cache_row,
+        "dc_root_row" => dc_root_row, "dc_fault_cap" => dc_fault_cap, "rect_x" => rect_x,
+        "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
+        "pad1" => pad1, "pad2" => pad2, "pad3" => pad3, "sample" => sample, "seed" => seed,
+        "flags" => flags, "spp" => spp,
+    });
+    sized(w, size_of::<Params>());
+    let w = same_layout!(RayState, "RayState", {
+        "ox" => origin, "oy" => origin + 4, "oz" => origin + 8, "t" => t,
+        "dx" => dir, "dy" => dir + 4, "dz" => dir + 8, "hit" => hit, "node" => node,
+        "sp" => sp, "status" => status, "steps" => steps, "cur_index" => cur_index,
+        "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
+        "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
+    });
+    sized(w, size_of::<RayState>());
+    let w = same_layout!(MeshInfo, "MeshInfo", {
+        "color" => color, "first_prim" => first_prim, "pad0" => pad, "pad1" => pad + 4,
+        "pad2" => pad + 8,
+    });
+    sized(w, size_of::<MeshInfo>());
+    let w = same_layout!(Pixel, "Pixel", {
+        "r" => rgb, "g" => rgb + 4, "b" => rgb + 8, "depth_bits" => depth, "id" => id,
+        "nx" => normal, "ny" => normal + 4, "nz" => normal + 8,
+    });
+    sized(w, size_of::<Pixel>());
+    let w = same_layout!(Counter, "Counter", {
+        "count" => count, "x" => dispatch, "y" => dispatch + 4, "z" => dispatch + 8,
+    });
+    sized(w, size_of::<Counter>());
+    let w = same_layout!(Stats, "Stats", {
+        "steps" => steps, "tri_tests" => tri_tests, "overflows" => overflows,
+        "suspended" => suspended, "lookups" => lookups, "hits" => hits, "misses" => misses,
+        "node_visits" => node_visits, "block_entries" => block_entries,
+        "unused0" => unused, "unused1" => unused + 4, "unused2" => unused + 8,
+    });
+    sized(w, size_of::<Stats>());
+    // The fault list follows the header.
+    let w = same_layout!(FaultHeader, "Faults", {
+        "count" => count, "dropped" => dropped, "pad0" => pad, "pad1" => pad + 4,
+        "blocks" => pad + 8,
+    });
+    assert_eq!(w.offset("blocks") as usize, size_of::<FaultHeader>());
+    let w = same_layout!(Light, "Light", { "pos" => pos, "color" => color });
+    sized(w, size_of::<Light>());
+    let w = same_layout!(ShadeParams, "ShadeParams", {
+        "sky" => sky, "sun_dir" => sun_dir, "sun" => sun, "mode" => mode, "fan" => fan,
+        "ao_rays" => ao_rays, "ao_distance" => ao_distance, "max_depth" => max_depth,
+        "rr_depth" => rr_depth, "light_count" => light_count, "offset_mode" => offset_mode,
+        "epsilon" => epsilon, "ambient" => ambient, "any_hit" => any_hit, "pad1" => pad,
+        "lights" => lights,
+    });
+    // The size pins the light array's length (MAX_LIGHTS on both sides).
+    sized(w, size_of::<ShadeParams>());
+    let w = same_layout!(Path, "Path", {
+        "pos" => pos, "alive" => alive, "n" => n, "depth" => depth, "albedo" => albedo,
+        "pixel" => pixel, "tp" => tp, "pad0" => pad0, "l" => l, "pad1" => pad1,
+    });
+    sized(w, size_of::<Path>());
+    let w = same_layout!(MirrorCase, "MirrorCase", {
+        "p" => p, "n" => n, "u" => u, "words" => words,
+    });
+    sized(w, size_of::<MirrorCase>());
+    let w = same_layout!(MirrorResult, "MirrorResult", {
+        "offset" => offset, "dir" => dir, "sample" => sample, "words" => words,
+    });
+    sized(w, size_of::<MirrorResult>());
 }

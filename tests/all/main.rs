@@ -8,6 +8,7 @@ mod common;
 mod dc;
 mod gpu_vs_cpu;
 mod layout;
+mod mirror;
 mod robust;
 mod shaders;
 mod shading;

@@ -1,5 +1,9 @@
 // Blocks in an Rgba32Uint 2D array texture: block k is row k % ROWS_PER_LAYER of layer
-// k / ROWS_PER_LAYER, one 16-byte texel per 4 words (blocks.rs documents the byte layout).
+// k / ROWS_PER_LAYER, one 16-byte texel per 4 words (src/blocks/mod.rs documents the byte
+// layout).
+
+override ROWS_PER_LAYER: u32 = 16384u;
+
 @group(0) @binding(1) var blocks: texture_2d_array<u32>;
 
 fn texel(block: u32, t: u32) -> vec4<u32> {

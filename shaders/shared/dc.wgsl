@@ -1,0 +1,70 @@
+// The distributed cache on the GPU (docs/ARCHITECTURE.md, The distributed cache): `locate` maps
+// a block id to the row that holds it, or records a fault and answers NONE. The host changes the
+// table and the cache rows only between dispatches.
+#import params
+
+// Pipelines built for the distributed cache set DC; replicated ones leave it false and pay for
+// no cache check at all.
+override DC: bool = false;
+
+// Mirrors gpu::layout::FaultHeader, followed by the deduplicated list of faulted blocks.
+struct Faults {
+    count: atomic<u32>,
+    dropped: atomic<u32>,
+    pad0: u32,
+    pad1: u32,
+    blocks: array<u32>,
+}
+// The row of every block on this GPU (resident or cached), NONE when absent: one load replaces
+// the ownership and tag arithmetic. The host updates it between rounds.
+@group(0) @binding(3) var<storage, read> block_rows: array<u32>;
+@group(0) @binding(4) var<storage, read_write> faults: Faults;
+@group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
+@group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
+
+// Per invocation, summed into Stats by the trace kernel.
+var<private> dc_lookups: u32 = 0u;
+var<private> dc_hits: u32 = 0u;
+var<private> dc_misses: u32 = 0u;
+
+// Mirrored by dc::cache_line.
+fn cache_line(k: u32) -> u32 {
+    if params.dc_map == 0u {
+        // Ize: count only the blocks this rank does not own, so no line is wasted.
+        let n = params.dc_ranks;
+        return (k - (k + (n - params.dc_rank)) / n) % params.dc_lines;
+    }
+    return k % params.dc_lines;
+}
+
+fn locate(k: u32) -> u32 {
+    if !DC {
+        return k;
+    }
+    let row = block_rows[k];
+    if row < params.dc_cache_row {
+        return row;  // owned, or the replicated root
+    }
+    dc_lookups += 1u;
+    if row != NONE {
+        dc_hits += 1u;
+        return row;
+    }
+    dc_misses += 1u;
+    request(k);
+    return NONE;
+}
+
+// Records a fault on block k, once per round however many rays ask.
+fn request(k: u32) {
+    atomicAdd(&waiters[cache_line(k)], 1u);
+    let bit = 1u << (k % 32u);
+    if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
+        let i = atomicAdd(&faults.count, 1u);
+        if i < params.dc_fault_cap {
+            faults.blocks[i] = k;
+        } else {
+            atomicAdd(&faults.dropped, 1u);
+        }
+    }
+}

@@ -1,0 +1,54 @@
+// The uniform every kernel that reads the scene gets (host: gpu::layout::Params), and the
+// "nothing" value of every index the host and the GPU exchange.
+
+const NONE: u32 = 0xffffffffu;
+
+// Mirrors gpu::layout::Params.
+struct Params {
+    origin: vec4<f32>,
+    forward: vec4<f32>,
+    right: vec4<f32>,       // camera right * tan(view_angle / 2) * aspect
+    up: vec4<f32>,          // camera up * tan(view_angle / 2)
+    background: vec4<f32>,
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    first_tile: u32,
+    batch_rays: u32,
+    step_budget: u32,
+    stack_size: u32,
+    mesh_count: u32,
+    node_blocks: u32,
+    // Distributed cache (docs/ARCHITECTURE.md, The distributed cache): ranks N, this rank, cache
+    // lines, mapping (0 Ize, 1 DeMarle), first cache row, the replicated root block's row, fault
+    // list capacity.
+    dc_ranks: u32,
+    dc_rank: u32,
+    dc_lines: u32,
+    dc_map: u32,
+    dc_cache_row: u32,
+    dc_root_row: u32,
+    dc_fault_cap: u32,
+    // The rectangle of the image this render covers; tiles_x counts 8x8 tiles across it.
+    rect_x: u32,
+    rect_y: u32,
+    rect_w: u32,
+    rect_h: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+    pad3: u32,
+    // Sampling: the sample index of this pass (the sampler's index), the seed, flags (JITTER,
+    // CULL, FIRST_SAMPLE) and the samples per pixel of the render.
+    sample: u32,
+    seed: u32,
+    flags: u32,
+    spp: u32,
+}
+
+// Params.flags
+const JITTER: u32 = 1u;        // jitter primary rays in the pixel (spp > 1)
+const CULL: u32 = 2u;          // primary rays that miss the root box skip traversal
+const FIRST_SAMPLE: u32 = 4u;  // the first pass of a render: the shade kernel resets pixels
+
+@group(0) @binding(0) var<uniform> params: Params;

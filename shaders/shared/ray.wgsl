@@ -1,0 +1,65 @@
+// The state of one ray between trace rounds (host: gpu::layout::RayState) and what every kernel
+// asks of a ray.
+#import params
+
+// The initial tmax: finite, because WGSL gives no guarantees for infinities.
+const FAR: f32 = 3.0e38;
+
+// RayState.status
+const LIVE: u32 = 0u;
+const DONE: u32 = 1u;
+const OUTSIDE: u32 = 2u;   // pixel outside the image (partial edge tile) or an invalid ray
+const OVERFLOW: u32 = 3u;  // traversal stack overflow: reported to the host as an error
+
+// Mirrors gpu::layout::RayState: one per ray of a batch, kept between trace dispatches.
+struct RayState {
+    ox: f32, oy: f32, oz: f32,
+    t: f32,       // closest hit so far (the ray's tmax)
+    dx: f32, dy: f32, dz: f32,
+    hit: u32,     // triangle index (BVH order) of the closest hit, or NONE
+    node: u32,    // node to visit next, or NONE to pop the stack
+    sp: u32,      // stack entries in use
+    status: u32,
+    steps: u32,   // loop iterations taken so far
+    // The content of `node` when already read (`cur_count` NONE when not): a resumed ray need
+    // not read its parent's block again.
+    cur_index: u32,
+    cur_count: u32,
+    // Recorded when the closest hit is found, while its block is at hand: shading then needs no
+    // block.
+    prim: u32,
+    nx: f32, ny: f32, nz: f32,
+    // The block this ray suspended on, or NONE: until it arrives the ray only renews its request.
+    wait_block: u32,
+    flags: u32,   // ANY_HIT
+}
+
+// RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
+const ANY_HIT: u32 = 1u;
+
+// A ray that has not started traversal: no hit, at the root, nothing read yet.
+fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32) -> RayState {
+    return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, 0u, status, 0u, 0u, NONE, NONE,
+                    0.0, 0.0, 0.0, NONE, flags);
+}
+
+fn ray_origin(r: RayState) -> vec3<f32> {
+    return vec3(r.ox, r.oy, r.oz);
+}
+
+fn ray_dir(r: RayState) -> vec3<f32> {
+    return vec3(r.dx, r.dy, r.dz);
+}
+
+// Whether a ray can be traced: finite origin, direction and tmax (checked on the bits: WGSL
+// implementations may assume no NaN or infinity, so IEEE comparisons cannot be trusted to find
+// them), a nonzero direction and a positive tmax. Other rays are misses.
+fn ray_valid(r: RayState) -> bool {
+    let e = (bitcast<vec3<u32>>(ray_origin(r)) >> vec3(23u)) & vec3(0xffu);
+    let f = (bitcast<vec3<u32>>(ray_dir(r)) >> vec3(23u)) & vec3(0xffu);
+    let g = (bitcast<u32>(r.t) >> 23u) & 0xffu;
+    let finite = all(e != vec3(0xffu)) && all(f != vec3(0xffu)) && g != 0xffu;
+    // Sign bits masked off: -0.0 is zero too.
+    let nonzero = any((bitcast<vec3<u32>>(ray_dir(r)) & vec3(0x7fffffffu)) != vec3(0u));
+    return finite && nonzero && r.t > 0.0;
+}

@@ -1,0 +1,232 @@
+//! The host's cache policy between trace rounds (docs/ARCHITECTURE.md, The round loop): the
+//! round's fault list comes in; which blocks to load into which lines, what each load evicts, and
+//! the changes to the GPU's block-row table go out. Pure bookkeeping, so it is tested without a
+//! GPU; `gpu::rounds` applies its plans.
+//!
+//! The first fault for a line wins it; the round's other faults on that line fault again next
+//! round. Every round with faults so loads at least one block, and a single-line cache still
+//! finishes.
+
+use super::trace::Fault;
+use super::{CacheMap, Ranks, cache_line};
+use crate::gpu::layout::NONE;
+
+/// A rank's cache: what each line holds and the row of every block on its GPU.
+#[derive(Clone, Debug)]
+pub struct CachePolicy {
+    ranks: Ranks,
+    map: CacheMap,
+    lines: u32,
+    /// The first cache row: the resident rows come before it.
+    cache_row: u32,
+    /// Block in each line, `NONE` when empty.
+    tags: Vec<u32>,
+    /// Row of every block (`NONE` when absent): the GPU's `block_rows` table.
+    block_rows: Vec<u32>,
+}
+
+/// A block to fetch into a cache line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Load {
+    pub block: u32,
+    pub line: u32,
+    /// The line's row in the block store.
+    pub row: u32,
+}
+
+/// What to do after one round's faults.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RoundPlan {
+    /// One record per fault, in the order of the GPU's list (for the trace).
+    pub faults: Vec<Fault>,
+    /// The blocks to fetch and where they go.
+    pub loads: Vec<Load>,
+    /// Entries of the block-row table to rewrite, in order: `(block, row)`, `row` `NONE` for an
+    /// evicted block.
+    pub rows: Vec<(u32, u32)>,
+}
+
+impl CachePolicy {
+    /// An empty cache of `lines` lines for rank `ranks.rank` of a model of `count` blocks: owned
+    /// blocks and the root at their resident rows, every other block absent.
+    pub fn new(ranks: Ranks, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
+        let block_rows = (0..count)
+            .map(|k| ranks.resident_row(k, count).unwrap_or(NONE))
+            .collect();
+        CachePolicy {
+            ranks,
+            map,
+            lines,
+            cache_row: ranks.resident_rows(count),
+            tags: vec![NONE; lines as usize],
+            block_rows,
+        }
+    }
+
+    pub fn ranks(&self) -> Ranks {
+        self.ranks
+    }
+
+    pub fn map(&self) -> CacheMap {
+        self.map
+    }
+
+    pub fn lines(&self) -> u32 {
+        self.lines
+    }
+
+    /// The first cache row (= the number of resident rows).
+    pub fn cache_row(&self) -> u32 {
+        self.cache_row
+    }
+
+    /// The row table the GPU starts with.
+    pub fn block_rows(&self) -> &[u32] {
+        &self.block_rows
+    }
+
+    /// The block line `line` holds, if any.
+    pub fn tag(&self, line: u32) -> Option<u32> {
+        let t = self.tags[line as usize];
+        (t != NONE).then_some(t)
+    }
+
+    /// Plans a round: `faults` is the GPU's deduplicated fault list, `waiting[line]` the rays
+    /// that waited on each line. The plan's loads are taken as done: fetch and upload them
+    /// before the next dispatch, or give up the frame.
+    pub fn plan_round(&mut self, faults: &[u32], waiting: &[u32]) -> RoundPlan {
+        let mut claimed = vec![false; self.lines as usize];
+        let mut plan = RoundPlan::default();
+        for &k in faults {
+            let line = cache_line(self.map, self.ranks, self.lines, k);
+            let first = !std::mem::replace(&mut claimed[line as usize], true);
+            let old = self.tags[line as usize];
+            plan.faults.push(Fault {
+                block: k,
+                owner: self.ranks.owner(k),
+                line,
+                evicted: (first && old != NONE).then_some(old),
+                waiting: waiting.get(line as usize).copied().unwrap_or(0),
+                served: first,
+            });
+            if first {
+                plan.loads.push(Load {
+                    block: k,
+                    line,
+                    row: self.cache_row + line,
+                });
+            }
+        }
+        for l in &plan.loads {
+            let old = std::mem::replace(&mut self.tags[l.line as usize], l.block);
+            for (b, r) in [(old, NONE), (l.block, l.row)] {
+                if b != NONE {
+                    self.block_rows[b as usize] = r;
+                    plan.rows.push((b, r));
+                }
+            }
+        }
+        plan
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn policy(n: u32, rank: u32, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
+        CachePolicy::new(Ranks::new(n, rank).unwrap(), map, lines, count)
+    }
+
+    #[test]
+    fn starts_with_resident_rows_only() {
+        // Rank 1 of 2, 6 blocks: owns 1, 3, 5 at rows 0..3, the root at row 3, cache from row 4.
+        let p = policy(2, 1, CacheMap::Ize, 2, 6);
+        assert_eq!(p.cache_row(), 4);
+        assert_eq!(p.block_rows(), &[3, 0, NONE, 1, NONE, 2]);
+        assert_eq!((p.tag(0), p.tag(1)), (None, None));
+    }
+
+    #[test]
+    fn first_fault_on_a_line_wins() {
+        // One line: of three faults only the first is loaded; the others fault again.
+        let mut p = policy(2, 0, CacheMap::Ize, 1, 10);
+        let plan = p.plan_round(&[3, 5, 7], &[3]);
+        assert_eq!(
+            plan.loads,
+            vec![Load {
+                block: 3,
+                line: 0,
+                row: 5
+            }]
+        );
+        let served: Vec<bool> = plan.faults.iter().map(|f| f.served).collect();
+        assert_eq!(served, vec![true, false, false]);
+        assert!(plan.faults.iter().all(|f| f.waiting == 3 && f.owner == 1));
+        assert_eq!(plan.rows, vec![(3, 5)]);
+        assert_eq!(p.tag(0), Some(3));
+    }
+
+    #[test]
+    fn a_single_line_cache_makes_progress_every_round() {
+        // However the faults arrive, each round loads one block, and a block once loaded is
+        // found at its row until evicted: every wanted block is eventually resident.
+        let mut p = policy(4, 2, CacheMap::Demarle, 1, 64);
+        let mut wanted: Vec<u32> = (0..64).filter(|k| !p.ranks().resident(*k)).collect();
+        let mut rounds = 0;
+        while let Some(&k) = wanted.first() {
+            let plan = p.plan_round(&wanted, &[wanted.len() as u32]);
+            assert_eq!(plan.loads.len(), 1);
+            assert_eq!(plan.loads[0].block, k);
+            assert_eq!(p.block_rows()[k as usize], p.cache_row());
+            wanted.remove(0);
+            rounds += 1;
+        }
+        assert_eq!(rounds, 47); // 64 blocks less 16 owned and the root
+    }
+
+    #[test]
+    fn loads_use_the_mapping_of_the_rank() {
+        for map in [CacheMap::Ize, CacheMap::Demarle] {
+            let mut p = policy(3, 1, map, 4, 40);
+            let faults = [2, 5, 9, 14];
+            let plan = p.plan_round(&faults, &[0; 4]);
+            for f in &plan.faults {
+                assert_eq!(f.line, cache_line(map, p.ranks(), 4, f.block), "{map:?}");
+            }
+            for l in &plan.loads {
+                assert_eq!(l.row, p.cache_row() + l.line);
+                assert_eq!(p.tag(l.line), Some(l.block));
+            }
+        }
+        // Ize numbers rank 1's borrowed blocks 0, 2, 3, 5, 6 densely: 2, 3, 5, 6 take lines
+        // 1, 2, 3 and 0 (DeMarle: 2, 3, 1, 2, so 6 loses line 2 to 2).
+        let mut p = policy(3, 1, CacheMap::Ize, 4, 40);
+        let plan = p.plan_round(&[2, 3, 5, 6], &[0; 4]);
+        let lines: Vec<u32> = plan.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![1, 2, 3, 0]);
+        let mut p = policy(3, 1, CacheMap::Demarle, 4, 40);
+        let plan = p.plan_round(&[2, 3, 5, 6], &[0; 4]);
+        let lines: Vec<u32> = plan.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![2, 3, 1]);
+    }
+
+    #[test]
+    fn eviction_clears_the_old_block_row() {
+        // DeMarle, 2 lines: blocks 3 and 5 share line 1.
+        let mut p = policy(2, 0, CacheMap::Demarle, 2, 10);
+        let row = p.cache_row() + 1;
+        let first = p.plan_round(&[3], &[0, 1]);
+        assert_eq!(first.faults[0].evicted, None);
+        assert_eq!(p.block_rows()[3], row);
+        let second = p.plan_round(&[5], &[0, 2]);
+        assert_eq!(second.faults[0].evicted, Some(3));
+        assert_eq!(second.faults[0].waiting, 2);
+        assert_eq!(second.rows, vec![(3, NONE), (5, row)]);
+        assert_eq!(p.block_rows()[3], NONE);
+        assert_eq!(p.block_rows()[5], row);
+        // Resident blocks are never touched.
+        assert_eq!(p.block_rows()[0], 0);
+        assert_eq!(p.block_rows()[4], 2);
+    }
+}

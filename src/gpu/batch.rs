@@ -1,0 +1,174 @@
+//! The buffers of one batch of rays (docs/ARCHITECTURE.md, The round loop): ray states and their
+//! stacks, the two live lists and counters that rounds alternate between, statistics, pixels,
+//! path states, and the buffers the host reads back through.
+
+use super::Gpu;
+use super::layout::{FaultHeader, Path, Pixel, RayState, RoundReadback, Stats};
+use crate::error::{Error, Result};
+use std::mem::size_of;
+
+/// 8x8 tiles of rays.
+pub const TILE_RAYS: u32 = crate::mirror::tiles::TILE * crate::mirror::tiles::TILE;
+/// Bytes of one traversal stack entry: (node, entry distance bits).
+const STACK_ENTRY_BYTES: u64 = 8;
+
+pub struct Batch {
+    /// Rays a batch holds (whole tiles).
+    pub rays_cap: u32,
+    pub rays: wgpu::Buffer,
+    stacks: wgpu::Buffer,
+    /// Live lists and their counters: a round reads one pair and appends to the other.
+    pub live: [wgpu::Buffer; 2],
+    pub counters: [wgpu::Buffer; 2],
+    pub stats: wgpu::Buffer,
+    pub pixels: wgpu::Buffer,
+    paths: wgpu::Buffer,
+    /// A `RoundReadback`.
+    pub readback: wgpu::Buffer,
+    /// Two GPU timestamps around each submission's trace rounds, and their resolve buffer.
+    pub timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
+    /// A `FaultHeader` and the fault list; one waiter count per cache line.
+    pub fault_readback: wgpu::Buffer,
+    pub waiter_readback: wgpu::Buffer,
+    pub pixel_readback: wgpu::Buffer,
+}
+
+/// Which live list a kernel reads (`live_in`, `counter_in`, `produced`); it appends to the
+/// other (`live_out`, `counter_out`, `consumed`). Ray generation and spawning write list 0.
+#[derive(Clone, Copy, Debug)]
+pub struct Lists {
+    pub input: usize,
+}
+
+impl Lists {
+    /// For kernels that fill list 0 from nothing.
+    pub const FILL_FIRST: Lists = Lists { input: 1 };
+
+    fn output(self) -> usize {
+        1 - self.input
+    }
+}
+
+/// Bytes of the fault readback for a list of `cap` blocks.
+pub fn fault_bytes(cap: u32) -> u64 {
+    size_of::<FaultHeader>() as u64 + 4 * u64::from(cap)
+}
+
+impl Batch {
+    /// Allocates per-batch buffers as large as `max_rays` and the adapter's limits allow.
+    pub fn new(
+        gpu: &Gpu,
+        stack_size: u32,
+        max_rays: u32,
+        lines: u32,
+        fault_cap: u32,
+    ) -> Result<Batch> {
+        let limit = gpu.storage_limit();
+        let ray_bytes = size_of::<RayState>() as u64;
+        let path_bytes = size_of::<Path>() as u64;
+        let pixel_bytes = size_of::<Pixel>() as u64;
+        let per_ray_max = (u64::from(stack_size) * STACK_ENTRY_BYTES)
+            .max(ray_bytes)
+            .max(path_bytes);
+        let by_memory = limit / per_ray_max;
+        let by_dispatch = u64::from(gpu.limits.max_compute_workgroups_per_dimension) * 64;
+        let rays = u64::from(max_rays).min(by_memory).min(by_dispatch);
+        let rays_cap = (rays / u64::from(TILE_RAYS) * u64::from(TILE_RAYS)) as u32;
+        if rays_cap == 0 {
+            return Err(Error::Gpu(format!(
+                "a traversal stack of {stack_size} entries per ray leaves no room for a tile of \
+                 rays in a {limit}-byte storage buffer"
+            )));
+        }
+        let n = u64::from(rays_cap);
+        use wgpu::BufferUsages as U;
+        // COPY_DST: `trace_rays` uploads its rays and live list directly.
+        let rays_buf = gpu.buffer(
+            "rays",
+            n * ray_bytes,
+            U::STORAGE | U::COPY_SRC | U::COPY_DST,
+        );
+        let stacks = gpu.buffer(
+            "stacks",
+            n * u64::from(stack_size) * STACK_ENTRY_BYTES,
+            U::STORAGE,
+        );
+        let live = [
+            gpu.buffer("live0", n * 4, U::STORAGE | U::COPY_DST),
+            gpu.buffer("live1", n * 4, U::STORAGE),
+        ];
+        let counter_usage = U::STORAGE | U::INDIRECT | U::COPY_SRC | U::COPY_DST;
+        let counters = [
+            gpu.buffer("counter0", 16, counter_usage),
+            gpu.buffer("counter1", 16, counter_usage),
+        ];
+        let stats = gpu.buffer(
+            "stats",
+            size_of::<Stats>() as u64,
+            U::STORAGE | U::COPY_SRC | U::COPY_DST,
+        );
+        let pixels = gpu.buffer("pixels", n * pixel_bytes, U::STORAGE | U::COPY_SRC);
+        let readback = gpu.buffer(
+            "readback",
+            size_of::<RoundReadback>() as u64,
+            U::MAP_READ | U::COPY_DST,
+        );
+        let paths = gpu.buffer("paths", n * path_bytes, U::STORAGE);
+        let fault_readback = gpu.buffer(
+            "fault readback",
+            fault_bytes(fault_cap),
+            U::MAP_READ | U::COPY_DST,
+        );
+        let waiter_readback = gpu.buffer(
+            "waiter readback",
+            4 * u64::from(lines),
+            U::MAP_READ | U::COPY_DST,
+        );
+        let pixel_readback =
+            gpu.buffer("pixel readback", n * pixel_bytes, U::MAP_READ | U::COPY_DST);
+        let timestamps = gpu
+            .features
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+            .then(|| {
+                let q = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("round timestamps"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count: 2,
+                });
+                let resolve = gpu.buffer("timestamps", 16, U::QUERY_RESOLVE | U::COPY_SRC);
+                (q, resolve)
+            });
+        Ok(Batch {
+            rays_cap,
+            rays: rays_buf,
+            stacks,
+            live,
+            counters,
+            stats,
+            pixels,
+            paths,
+            readback,
+            timestamps,
+            fault_readback,
+            waiter_readback,
+            pixel_readback,
+        })
+    }
+
+    /// The batch buffer bound to WGSL variable `name` (group 1 of the kernels).
+    pub fn resource(&self, name: &str, lists: Lists) -> Option<&wgpu::Buffer> {
+        let (i, o) = (lists.input, lists.output());
+        Some(match name {
+            "rays" => &self.rays,
+            "stacks" => &self.stacks,
+            "live_in" => &self.live[i],
+            "counter_in" | "produced" => &self.counters[i],
+            "live_out" => &self.live[o],
+            "counter_out" | "consumed" => &self.counters[o],
+            "stats" => &self.stats,
+            "pixels" => &self.pixels,
+            "paths" => &self.paths,
+            _ => return None,
+        })
+    }
+}

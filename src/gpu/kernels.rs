@@ -1,0 +1,210 @@
+//! Compute pipelines made from the composed kernels. Bind group layouts come from naga's
+//! reflection of each kernel (`shaders::KernelInfo::bindings`), and bind groups are filled by
+//! binding name, so no binding list is written by hand (docs/ARCHITECTURE.md, Shaders).
+
+use super::Gpu;
+use super::shaders::{self, BindingKind, KernelInfo, Store};
+use crate::shading::Mode;
+
+/// One kernel's pipeline and the layouts of the groups it declares.
+pub struct Kernel {
+    pub info: &'static KernelInfo,
+    pipeline: wgpu::ComputePipeline,
+    /// Indexed by group; `None` for a group the kernel does not use.
+    layouts: Vec<Option<wgpu::BindGroupLayout>>,
+}
+
+/// A kernel's bind groups, indexed by group.
+pub struct Bound(Vec<Option<wgpu::BindGroup>>);
+
+impl Bound {
+    /// No bind groups (a placeholder until the resources exist).
+    pub fn empty() -> Bound {
+        Bound(Vec::new())
+    }
+}
+
+/// How many workgroups a dispatch runs.
+pub enum Dispatch<'a> {
+    Direct(u32),
+    /// The indirect arguments of a `Counter` (after its count, at byte 4).
+    Indirect(&'a wgpu::Buffer),
+}
+
+fn layout_entry(b: &shaders::BindingInfo) -> wgpu::BindGroupLayoutEntry {
+    let ty = match b.kind {
+        BindingKind::Uniform => wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        BindingKind::Storage { read_only } => wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        BindingKind::UintTexture2dArray => wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Uint,
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+    };
+    wgpu::BindGroupLayoutEntry {
+        binding: b.binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty,
+        count: None,
+    }
+}
+
+impl Kernel {
+    /// Builds kernel `name` for `store`; of `constants`, it gets those it declares.
+    pub fn new(gpu: &Gpu, name: &str, store: Store, constants: &[(&'static str, f64)]) -> Kernel {
+        let info = shaders::kernel(name, store);
+        let groups = info.bindings.iter().map(|b| b.group + 1).max().unwrap_or(0);
+        let layouts: Vec<Option<wgpu::BindGroupLayout>> = (0..groups)
+            .map(|g| {
+                let entries: Vec<_> = info
+                    .bindings
+                    .iter()
+                    .filter(|b| b.group == g)
+                    .map(layout_entry)
+                    .collect();
+                (!entries.is_empty()).then(|| {
+                    gpu.device
+                        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                            label: Some(name),
+                            entries: &entries,
+                        })
+                })
+            })
+            .collect();
+        let module = gpu
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(info.source.into()),
+            });
+        let refs: Vec<Option<&wgpu::BindGroupLayout>> =
+            layouts.iter().map(Option::as_ref).collect();
+        let layout = gpu
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(name),
+                bind_group_layouts: &refs,
+                immediate_size: 0,
+            });
+        let constants: Vec<(&str, f64)> = constants
+            .iter()
+            .filter(|(c, _)| info.overrides.contains(c))
+            .copied()
+            .collect();
+        let pipeline = gpu
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    ..Default::default()
+                },
+                cache: None,
+            });
+        Kernel {
+            info,
+            pipeline,
+            layouts,
+        }
+    }
+
+    /// Bind groups for every group the kernel declares, each binding filled with
+    /// `resource(name)`. A name without a resource is a host bug: it panics naming both.
+    pub fn bind<'a>(
+        &self,
+        gpu: &Gpu,
+        resource: impl Fn(&str) -> Option<wgpu::BindingResource<'a>>,
+    ) -> Bound {
+        let groups = self
+            .layouts
+            .iter()
+            .enumerate()
+            .map(|(g, layout)| {
+                let layout = layout.as_ref()?;
+                let entries: Vec<wgpu::BindGroupEntry<'a>> = self
+                    .info
+                    .bindings
+                    .iter()
+                    .filter(|b| b.group == g as u32)
+                    .map(|b| wgpu::BindGroupEntry {
+                        binding: b.binding,
+                        resource: resource(b.name).unwrap_or_else(|| {
+                            panic!("kernel {}: nothing to bind to {}", self.info.name, b.name)
+                        }),
+                    })
+                    .collect();
+                Some(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(self.info.name),
+                    layout,
+                    entries: &entries,
+                }))
+            })
+            .collect();
+        Bound(groups)
+    }
+
+    /// Records one compute pass of this kernel; `timestamps` writes GPU timestamps around it.
+    pub fn dispatch(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        bound: &Bound,
+        groups: Dispatch<'_>,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: None,
+            timestamp_writes: timestamps,
+        });
+        pass.set_pipeline(&self.pipeline);
+        for (g, group) in bound.0.iter().enumerate() {
+            if let Some(group) = group {
+                pass.set_bind_group(g as u32, group, &[]);
+            }
+        }
+        match groups {
+            Dispatch::Direct(n) => pass.dispatch_workgroups(n, 1, 1),
+            Dispatch::Indirect(buf) => pass.dispatch_workgroups_indirect(buf, 4),
+        }
+    }
+}
+
+/// The pipelines of a shading mode: each carries only its mode's code (`MODE` is a pipeline
+/// constant), and modes without secondary rays get no spawn or gather pipeline.
+pub struct Kernels {
+    pub raygen: Kernel,
+    pub trace: Kernel,
+    pub args: Kernel,
+    pub shade: Kernel,
+    pub probe: Kernel,
+    pub spawn: Option<Kernel>,
+    pub gather: Option<Kernel>,
+}
+
+impl Kernels {
+    pub fn new(gpu: &Gpu, store: Store, constants: &[(&'static str, f64)], mode: Mode) -> Kernels {
+        let mut c = constants.to_vec();
+        c.push(("MODE", f64::from(mode as u32)));
+        let k = |name| Kernel::new(gpu, name, store, &c);
+        let waves = mode != Mode::Cast;
+        Kernels {
+            raygen: k("raygen"),
+            trace: k("trace"),
+            args: k("args"),
+            shade: k("shade"),
+            probe: k("probe"),
+            spawn: waves.then(|| k("spawn")),
+            gather: waves.then(|| k("gather")),
+        }
+    }
+}

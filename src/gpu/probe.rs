@@ -1,0 +1,111 @@
+//! The layout probe (tests): the `probe` kernel reads every member of every host-written struct
+//! through the kernels' own accessors and writes it out as raw words, so a test can compare each
+//! member with what the host wrote.
+
+use super::kernels::Dispatch;
+use super::layout::{MirrorCase, MirrorResult, Params, RayState, ShadeParams};
+use super::tracer::Tracer;
+use crate::error::Result;
+use wgpu::util::DeviceExt;
+
+/// Words the probe writes: every `Params` member, `params.pad0` nodes of 8 words, `params.pad1`
+/// triangles of 10, two ray states, `params.mesh_count` meshes and the shading parameters.
+pub fn probe_words(params: &Params) -> u32 {
+    let params_words = (size_of::<Params>() / 4) as u32;
+    let ray_words = (size_of::<RayState>() / 4) as u32;
+    let mesh_words = (size_of::<super::layout::MeshInfo>() / 4) as u32;
+    let shade_words = (size_of::<ShadeParams>() / 4) as u32;
+    params_words
+        + 8 * params.pad0
+        + 10 * params.pad1
+        + 2 * ray_words
+        + mesh_words * params.mesh_count
+        + shade_words
+}
+
+impl Tracer<'_> {
+    /// Runs the layout probe: `rays` must hold two states; returns the words the probe wrote.
+    /// `params` replaces the tracer's own for the probe, so the caller controls every member.
+    pub fn probe(
+        &mut self,
+        params: Params,
+        rays: &[RayState; 2],
+        shading: &ShadeParams,
+    ) -> Result<Vec<u32>> {
+        let gpu = self.gpu;
+        gpu.write(&self.params_buf, &params);
+        let init = |label, contents: &[u8], usage| {
+            gpu.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage,
+                })
+        };
+        let input = init(
+            "probe rays",
+            bytemuck::cast_slice(rays),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let shade = init(
+            "probe shading",
+            bytemuck::bytes_of(shading),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let bytes = u64::from(probe_words(&params)) * 4;
+        let out = gpu.buffer(
+            "probe out",
+            bytes,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        );
+        let lists = super::batch::Lists::FILL_FIRST;
+        let kernel = &self.kernels.probe;
+        let bound = kernel.bind(gpu, |name| match name {
+            "probe_rays" => Some(input.as_entire_binding()),
+            "out" => Some(out.as_entire_binding()),
+            "probe_shading" => Some(shade.as_entire_binding()),
+            _ => self.resource(name, lists),
+        });
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        kernel.dispatch(&mut enc, &bound, Dispatch::Direct(1), None);
+        gpu.queue.submit([enc.finish()]);
+        let data = gpu.read_buffer(&out, 0, bytes)?;
+        gpu.write(&self.params_buf, &self.params);
+        Ok(bytemuck::pod_collect_to_vec(&data))
+    }
+}
+
+/// Runs the mirror kernel (tests): each case through the shared WGSL functions that have CPU
+/// twins in `mirror`, with `params` as the uniform (its `seed`, `first_tile`, `tiles_x` matter).
+pub fn run_mirror(
+    gpu: &super::Gpu,
+    params: &Params,
+    cases: &[MirrorCase],
+) -> Result<Vec<MirrorResult>> {
+    use wgpu::BufferUsages as U;
+    let kernel = super::kernels::Kernel::new(gpu, "mirror", super::shaders::Store::Texture, &[]);
+    let init = |label, contents: &[u8], usage| {
+        gpu.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+    };
+    let params_buf = init("params", bytemuck::bytes_of(params), U::UNIFORM);
+    let input = init("mirror in", bytemuck::cast_slice(cases), U::STORAGE);
+    let bytes = (cases.len() * size_of::<MirrorResult>()) as u64;
+    let out = gpu.buffer("mirror out", bytes, U::STORAGE | U::COPY_SRC);
+    let bound = kernel.bind(gpu, |name| match name {
+        "params" => Some(params_buf.as_entire_binding()),
+        "mirror_in" => Some(input.as_entire_binding()),
+        "mirror_out" => Some(out.as_entire_binding()),
+        _ => None,
+    });
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let groups = Dispatch::Direct((cases.len() as u32).div_ceil(64));
+    kernel.dispatch(&mut enc, &bound, groups, None);
+    gpu.queue.submit([enc.finish()]);
+    let data = gpu.read_buffer(&out, 0, bytes)?;
+    Ok(bytemuck::pod_collect_to_vec(&data))
+}

@@ -1,0 +1,125 @@
+//! Every CPU twin in `dcrt::mirror` against its WGSL function, run on the GPU through the
+//! `mirror` kernel: integer functions bit for bit, float ones within the precision WGSL allows.
+
+use crate::common::*;
+use dcrt::gpu::layout::{MirrorCase, Params};
+use dcrt::gpu::probe::run_mirror;
+use dcrt::mirror::offset::offset_ray;
+use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
+use dcrt::mirror::tiles::tile_pixel;
+
+/// A deterministic generator for the cases (splitmix64).
+struct Mix(u64);
+
+impl Mix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn unit(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    /// Log-uniform magnitude over 1e-8..1e8 with a random sign, or an exact small value.
+    fn coord(&mut self) -> f32 {
+        match self.next() % 8 {
+            0 => 0.0,
+            1 => 0.02 * (self.unit() - 0.5),
+            _ => {
+                let m = 10f32.powf(16.0 * self.unit() - 8.0);
+                if self.next().is_multiple_of(2) { m } else { -m }
+            }
+        }
+    }
+    fn normal(&mut self) -> [f32; 3] {
+        loop {
+            let v = [0; 3].map(|_| 2.0 * self.unit() - 1.0);
+            let l = v.iter().map(|c| c * c).sum::<f32>().sqrt();
+            if l > 0.1 && l <= 1.0 {
+                return v.map(|c| c / l);
+            }
+        }
+    }
+}
+
+fn cases(n: usize) -> Vec<MirrorCase> {
+    let mut m = Mix(42);
+    (0..n)
+        .map(|_| {
+            let n3 = m.normal();
+            MirrorCase {
+                p: [m.coord(), m.coord(), m.coord(), 0.0],
+                n: [n3[0], n3[1], n3[2], 0.0],
+                u: [m.unit(), m.unit(), 0.0, 0.0],
+                words: [
+                    m.next() as u32,
+                    m.next() as u32,
+                    (m.next() % 64) as u32,
+                    m.next() as u32,
+                ],
+            }
+        })
+        .collect()
+}
+
+fn params() -> Params {
+    Params {
+        seed: 0xdead_beef,
+        first_tile: 5,
+        tiles_x: 3,
+        ..Params::default()
+    }
+}
+
+#[test]
+fn integer_twins_match_the_gpu_bit_for_bit() {
+    let gpu = gpu();
+    let (p, cases) = (params(), cases(4096));
+    let out = run_mirror(&gpu, &p, &cases).unwrap();
+    assert_eq!(out.len(), cases.len());
+    for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
+        assert_eq!(r.words[0], hash(c.words[0]), "hash, case {i}");
+        let s = sample2(p.seed, c.words[1], c.words[2], c.words[3]);
+        assert_eq!(
+            [r.sample[0].to_bits(), r.sample[1].to_bits()],
+            s.map(f32::to_bits),
+            "sample2, case {i}"
+        );
+        let t = tile_pixel(p.first_tile, p.tiles_x, i as u32);
+        assert_eq!((r.words[1], r.words[2]), t, "tile_pixel, slot {i}");
+    }
+}
+
+#[test]
+fn offset_ray_matches_the_gpu_bit_for_bit() {
+    // Integer ulp steps, and one add and multiply near zero: exact in IEEE f32 on both sides.
+    let gpu = gpu();
+    let cases = cases(4096);
+    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
+        let p = [c.p[0], c.p[1], c.p[2]];
+        let n = [c.n[0], c.n[1], c.n[2]];
+        let cpu = offset_ray(p, n).map(f32::to_bits);
+        let gpu: [u32; 3] = std::array::from_fn(|a| r.offset[a].to_bits());
+        assert_eq!(gpu, cpu, "offset_ray({p:?}, {n:?}), case {i}");
+    }
+}
+
+#[test]
+fn cosine_dir_matches_the_gpu_within_float_precision() {
+    let gpu = gpu();
+    let cases = cases(4096);
+    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let mut worst = 0.0f32;
+    for (c, r) in cases.iter().zip(&out) {
+        let cpu = cosine_dir([c.n[0], c.n[1], c.n[2]], [c.u[0], c.u[1]]);
+        for (c, g) in cpu.iter().zip(r.dir) {
+            worst = worst.max((c - g).abs());
+        }
+    }
+    // WGSL's sin, cos and sqrt are not correctly rounded; 1e-5 is a few hundred ulps of a unit
+    // vector and far below any visible difference.
+    assert!(worst < 1e-5, "largest difference {worst}");
+}
