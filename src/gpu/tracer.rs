@@ -17,9 +17,9 @@ use crate::dc::source::BlockSource;
 use crate::dc::trace::{Fault, FrameTrace, Round};
 use crate::dc::{CacheMap, Ranks, cache_line};
 use crate::error::{Error, Result};
+use crate::reference::Ray;
 use crate::scene::CameraBasis;
 use crate::shading::{Mode, Shading};
-use crate::trace::cpu::Ray;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 

@@ -1,6 +1,4 @@
-//! CPU tracing: the f64 reference tracer that is the oracle for the GPU kernels, and the
-//! self-intersection offset of secondary-ray origins.
+//! Secondary-ray origins: the self-intersection offset. (The f64 reference tracer is
+//! `crate::reference`.)
 
-pub mod cpu;
 pub mod offset;
-pub mod shade;

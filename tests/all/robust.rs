@@ -7,8 +7,8 @@ use dcrt::blocks::{Blocks, Format};
 use dcrt::bvh::{Bvh, Node};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{GpuModel, MAX_STACK, Meshes, RayHit, Settings, Tracer};
+use dcrt::reference::{Hit, Ray, Reference};
 use dcrt::scene::Model;
-use dcrt::trace::cpu::{Hit, Ray, Reference};
 use dcrt::trace::offset::{spawn_origin, triangle_scale};
 use std::time::Duration;
 

@@ -26,6 +26,8 @@
 //!   as long as the distance from the ray origin to a triangle is below ~1e6 times the
 //!   triangle's size. (Beyond that, the triangle test's own result is dominated by rounding.)
 
+pub mod shade;
+
 use rayon::prelude::*;
 
 /// A ray: origin and direction in f32 as the GPU gets them (the direction need not be unit).

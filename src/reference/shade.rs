@@ -2,9 +2,9 @@
 //! f64 reference tracer for visibility, and the GPU's own sampler, offset and hemisphere mapping
 //! (`crate::shading`), so GPU and CPU shoot the same secondary rays up to float rounding.
 
+use crate::reference::{Ray, Reference};
 use crate::scene::{CameraBasis, Model};
 use crate::shading::{Light, Mode, Offset, Shading, cosine_dir, offset_ray, sample2};
-use crate::trace::cpu::{Ray, Reference};
 use rayon::prelude::*;
 
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
