@@ -3,7 +3,7 @@
 //!
 //! Data flows `scene` (TOML, meshes, generators) → `bvh` (obvhs build, our 32-byte node format in
 //! blocked layout) → `blocks` (8 KiB node and triangle blocks) → `gpu` (WGSL compute: ray
-//! generation, budgeted traversal rounds, shading) → `output` (PNG, EXR). `trace::cpu` is an
+//! generation, budgeted traversal rounds, shading) → `output` (PNG, EXR). `reference` is an
 //! independent f64 reference tracer used as the oracle in tests.
 
 pub mod blocks;
@@ -14,9 +14,9 @@ pub mod error;
 pub mod gpu;
 pub mod mirror;
 pub mod output;
+pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod shading;
-pub mod trace;
 
 pub use error::{Error, Result};

@@ -5,9 +5,9 @@ use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::layout::Pixel;
 use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
+use dcrt::reference::{Hit, Ray, Reference};
 use dcrt::render::Prepared;
 use dcrt::scene::{Camera, Model, Scene};
-use dcrt::trace::cpu::{Hit, Ray, Reference};
 use std::path::{Path, PathBuf};
 
 pub fn gpu() -> Gpu {

@@ -8,8 +8,8 @@ use dcrt::bvh::{Bvh, Node};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{GpuModel, MAX_STACK, Meshes, RayHit, Settings, Tracer};
 use dcrt::mirror::offset::offset_ray;
+use dcrt::reference::{Hit, Ray, Reference};
 use dcrt::scene::Model;
-use dcrt::trace::cpu::{Hit, Ray, Reference};
 use std::time::Duration;
 
 type Tri = [[f32; 3]; 3];

@@ -5,12 +5,12 @@
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::reference::Reference;
+use dcrt::reference::shade::reference_image;
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
 use dcrt::shading::{Light, Mode, Shading};
-use dcrt::trace::cpu::Reference;
-use dcrt::trace::shade::reference_image;
 
 /// A closed lat-long sphere of radius about 1 at the origin; `bump` > 0 makes it non-convex.
 fn sphere(rings: u32, segs: u32, bump: f32) -> Model {

@@ -4,9 +4,9 @@
 
 use crate::mirror::offset::offset_ray;
 use crate::mirror::sampling::{cosine_dir, sample2};
+use crate::reference::{Ray, Reference};
 use crate::scene::{CameraBasis, Model};
 use crate::shading::{Light, Mode, Offset, Shading};
-use crate::trace::cpu::{Ray, Reference};
 use rayon::prelude::*;
 
 fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {

@@ -1,0 +1,387 @@
+//! Stanford PLY loading: `ascii`, `binary_little_endian` and `binary_big_endian` 1.0.
+//!
+//! Only vertex positions (`x`, `y`, `z` of element `vertex`) and face index lists
+//! (`vertex_indices` or `vertex_index` of element `face`) are kept. Every other property and
+//! element is still parsed, so that its bytes are skipped correctly and a file whose data does
+//! not match its header is reported instead of being misread.
+//!
+//! Here: the load API and the record builder the body readers share; `header`: the header
+//! parser; `ascii` and `binary`: the body readers.
+
+mod ascii;
+mod binary;
+#[cfg(test)]
+mod fixtures;
+mod header;
+
+use crate::error::{Error, Result};
+use crate::scene::mesh::Mesh;
+use ascii::read_ascii;
+use binary::read_binary;
+use header::{Format, Header, Target};
+use std::fs::File;
+use std::io::{self, BufRead, BufReader, Read};
+use std::path::Path;
+
+/// Most elements a header count may reserve room for up front. A corrupt count must not allocate
+/// gigabytes before truncation is noticed; bigger real meshes grow the vectors as they are read.
+const MAX_RESERVE: u64 = 1 << 20;
+
+/// Reads the PLY file at `path`.
+pub fn load_ply(path: &Path) -> Result<Mesh> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    parse_ply(BufReader::with_capacity(1 << 18, file), path)
+}
+
+/// Parses a PLY file from `reader` (e.g. a `BufReader<File>` or a `&[u8]`); `origin` names the
+/// source in errors.
+///
+/// Polygons are fan-triangulated in order, (v0,v1,v2), (v0,v2,v3), ..., so triangle ids follow
+/// file order. Header errors name the header line; data errors name the element and its index
+/// (and the line, for ascii files).
+pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
+    let header = Header::read(&mut reader, origin)?;
+    let count = |target| {
+        header
+            .elements
+            .iter()
+            .find(|e| e.target == target)
+            .map_or(0, |e| e.count)
+    };
+    let vertex_count = count(Target::Vertices);
+    let mut b = Builder {
+        mesh: Mesh {
+            positions: Vec::with_capacity(vertex_count.min(MAX_RESERVE) as usize),
+            triangles: Vec::with_capacity(count(Target::Faces).min(MAX_RESERVE) as usize),
+        },
+        vertex_count,
+        xyz: [0.0; 3],
+        poly: Vec::new(),
+    };
+    match header.format {
+        Format::Ascii => read_ascii(&mut reader, &header, &mut b, origin)?,
+        Format::Binary { big_endian } => {
+            read_binary(&mut reader, &header, big_endian, &mut b, origin)?;
+        }
+    }
+    Ok(b.mesh)
+}
+
+/// Collects decoded values into the mesh, one record at a time.
+struct Builder {
+    mesh: Mesh,
+    vertex_count: u64,
+    xyz: [f64; 3],
+    poly: Vec<u32>,
+}
+
+impl Builder {
+    #[inline]
+    fn index(&mut self, v: f64) -> std::result::Result<(), String> {
+        // Also rejects negative values; the header limits vertex_count to u32 range.
+        if v >= 0.0 && v < self.vertex_count as f64 {
+            self.poly.push(v as u32);
+            Ok(())
+        } else {
+            Err(format!(
+                "vertex index {v} out of range ({} vertices)",
+                self.vertex_count
+            ))
+        }
+    }
+
+    /// Completes the record just read for an element of kind `target`.
+    #[inline]
+    fn finish(&mut self, target: Target) -> std::result::Result<(), String> {
+        match target {
+            Target::Vertices => {
+                let p = self.xyz.map(|c| c as f32);
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(format!("coordinate is not finite: {p:?}"));
+                }
+                self.mesh.positions.push(p);
+            }
+            Target::Faces => {
+                let poly = &self.poly;
+                if poly.len() < 3 {
+                    return Err(format!(
+                        "face has {} vertices, needs at least 3",
+                        poly.len()
+                    ));
+                }
+                for k in 1..poly.len() - 1 {
+                    self.mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
+                }
+                self.poly.clear();
+            }
+            Target::Other => {}
+        }
+        Ok(())
+    }
+}
+
+enum Line {
+    Eof,
+    Text,
+    TooLong,
+}
+
+/// Reads one line, newline included, of at most `limit` bytes into `buf`.
+fn read_line<R: BufRead>(r: &mut R, buf: &mut Vec<u8>, limit: u64) -> io::Result<Line> {
+    buf.clear();
+    let n = r.by_ref().take(limit).read_until(b'\n', buf)?;
+    Ok(if n == 0 {
+        Line::Eof
+    } else if n as u64 == limit && buf.last() != Some(&b'\n') {
+        Line::TooLong
+    } else {
+        Line::Text
+    })
+}
+
+/// A token as it can be shown in a message: short, and with control characters escaped.
+fn snippet(tok: &str) -> String {
+    tok.escape_debug().take(32).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fixtures::*;
+
+    #[test]
+    fn cube_round_trips_in_every_format() {
+        let want = expected_cube();
+        for format in FORMATS {
+            let mesh = parse(&write_ply(format, &cube_elements("float", "uchar", "int"))).unwrap();
+            assert_same(&mesh, &want);
+        }
+    }
+
+    #[test]
+    fn every_scalar_type() {
+        let want = expected_cube();
+        let coords = ["float", "float32", "double", "float64"];
+        let ints = ["char", "int8", "short", "int16", "int", "int32"];
+        let uints = ["uchar", "uint8", "ushort", "uint16", "uint", "uint32"];
+        for format in FORMATS {
+            for (k, index) in ints.iter().chain(&uints).enumerate() {
+                let coord = coords[k % coords.len()];
+                let count = ints.iter().chain(&uints).nth(k * 5 % 12).unwrap();
+                let file = write_ply(format, &cube_elements(coord, count, index));
+                assert_same(&parse(&file).unwrap(), &want);
+            }
+            // Integer coordinates (the cube's z is fractional, so use a unit cube here).
+            for coord in ints.iter().chain(&uints).copied() {
+                let mut els = cube_elements(coord, "uchar", "uint");
+                for row in &mut els[1].rows {
+                    row[4] = 1.0;
+                }
+                let mesh = parse(&write_ply(format, &els)).unwrap();
+                assert_eq!(mesh.positions[7], [1.0, 1.0, 1.0]);
+                assert_eq!(mesh.triangles, want.triangles);
+            }
+        }
+    }
+
+    #[test]
+    fn faces_before_vertices_and_vertex_index_name() {
+        for format in FORMATS {
+            let mut els = cube_elements("float", "uchar", "int");
+            els.swap(1, 3);
+            if let P::L(_, _, name) = &mut els[1].props[1] {
+                *name = "vertex_index";
+            }
+            assert_same(&parse(&write_ply(format, &els)).unwrap(), &expected_cube());
+        }
+    }
+
+    #[test]
+    fn pentagon_fans_in_order_and_no_faces_is_empty() {
+        let text = b"ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\n\
+            property float y\nproperty float z\nelement face 1\n\
+            property list uchar uint vertex_indices\nend_header\n\
+            0 0 0\n1 0 0\n1 1 0\n0.5 2 0\n0 1 0\n\n5 0 1 2 3 4\n\n";
+        let mesh = parse(text).unwrap();
+        assert_eq!(mesh.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
+        let points = b"ply\r\nformat ascii 1.0\r\nelement vertex 1\r\nproperty float x\r\n\
+            property float y\r\nproperty float z\r\nend_header\r\n1 2 3\r\n";
+        let mesh = parse(points).unwrap();
+        assert_eq!(mesh.positions, vec![[1.0, 2.0, 3.0]]);
+        assert!(mesh.triangles.is_empty());
+    }
+
+    #[test]
+    fn trailing_data() {
+        for format in &FORMATS[1..] {
+            let mut file = write_ply(format, &cube_elements("float", "uchar", "int"));
+            file.extend_from_slice(b"abc");
+            assert_err(&file, "test.ply", "3 bytes of data after the last element");
+        }
+        let mut file = write_ply("ascii", &cube_elements("float", "uchar", "int"));
+        file.extend_from_slice(b"\n3 0 1 2\n3 0 2 1\n\n");
+        assert_err(&file, "line 44", "2 lines of data after the last element");
+    }
+
+    #[test]
+    fn data_errors() {
+        let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                    property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                    end_header\n";
+        let file = |data: &str| format!("{head}{data}").into_bytes();
+        assert_err(
+            &file("0 0 0\n1 abc 0\n0 1 0\n3 0 1 2\n"),
+            "vertex 1 (line 11)",
+            "expected a number, found 'abc'",
+        );
+        assert_err(
+            &file("0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n"),
+            "vertex 1",
+            "not finite",
+        );
+        assert_err(
+            &file("0 0 0\n1 0 0\n0 1 0\n3 0 1 17\n"),
+            "face 0 (line 13)",
+            "vertex index 17 out of range (3 vertices)",
+        );
+        assert_err(
+            &file("0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n"),
+            "face 0",
+            "vertex index -1 out of range",
+        );
+        assert_err(
+            &file("0 0 0\n1 0 0\n0 1 0\n2 0 1\n"),
+            "face 0",
+            "face has 2 vertices, needs at least 3",
+        );
+        assert_err(
+            &file("0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n"),
+            "face 0",
+            "expected an integer, found '1.5'",
+        );
+        assert_err(
+            &file("0 0 0\n1 0 0\n0 1 0\n300 0 1 2\n"),
+            "face 0",
+            "value 300 out of range for uchar",
+        );
+        let mut bad = file("0 0 0\n");
+        bad.extend_from_slice(b"\xff 0 0\n");
+        assert_err(&bad, "vertex 1 (line 11)", "not valid UTF-8");
+
+        // The same checks on binary data.
+        let bin = |x: f32, idx: i32| {
+            let mut els = cube_elements("float", "uchar", "int");
+            els[1].rows[3][1] = f64::from(x);
+            els[3].rows[2][3] = f64::from(idx);
+            write_ply("binary_big_endian", &els)
+        };
+        assert_err(&bin(f32::INFINITY, 1), "vertex 3", "not finite");
+        assert_err(
+            &bin(0.0, 8),
+            "face 2",
+            "vertex index 8 out of range (8 vertices)",
+        );
+        assert_err(&bin(0.0, -3), "face 2", "vertex index -3 out of range");
+        let mut els = cube_elements("float", "uchar", "int");
+        els[3].rows[4] = vec![3.0, 2.0, 0.0, 1.0, 0.0];
+        assert_err(
+            &write_ply("binary_little_endian", &els),
+            "face 4",
+            "face has 2 vertices",
+        );
+        let mut els = cube_elements("float", "int", "int");
+        els[3].rows[4] = vec![3.0, -1.0, 0.0];
+        assert_err(
+            &write_ply("binary_little_endian", &els),
+            "face 4",
+            "negative length",
+        );
+    }
+
+    #[test]
+    fn absurd_counts_fail_as_truncation() {
+        for format in FORMATS {
+            let file = format!(
+                "ply\nformat {format} 1.0\nelement vertex 4000000000\nproperty float x\n\
+                 property float y\nproperty float z\nelement face 4000000000\n\
+                 property list uint uint vertex_indices\nend_header\n"
+            );
+            assert_err(
+                file.as_bytes(),
+                "vertex 0",
+                "file ends after 0 of 4000000000 vertices",
+            );
+        }
+        // A face claiming four billion corners.
+        let mut file = write_ply(
+            "binary_little_endian",
+            &cube_elements("float", "uint", "int"),
+        );
+        file.truncate(file.len() - 6 * (1 + 4 + 4 * 4 + 1 + 2 * 4));
+        file.extend_from_slice(&[3, 0xff, 0xff, 0xff, 0xff, 0, 0, 0, 0]);
+        assert_err(&file, "face 0", "file ends after 0 of 6 faces");
+    }
+
+    #[test]
+    fn missing_file_is_an_io_error() {
+        let err = load_ply(Path::new("/nonexistent/missing.ply")).unwrap_err();
+        assert!(matches!(err, Error::Io { .. }));
+        assert!(err.to_string().contains("missing.ply"), "{err}");
+    }
+
+    #[test]
+    fn random_input_never_panics() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let valid: Vec<Vec<u8>> = FORMATS
+            .iter()
+            .map(|f| write_ply(f, &cube_elements("float", "uchar", "int")))
+            .collect();
+        for round in 0..4000 {
+            let mut bytes = match round % 4 {
+                3 => (0..next() % 200).map(|_| next() as u8).collect(),
+                k => valid[k].clone(),
+            };
+            // Mutate a few bytes (often in the header, where counts and types live), then maybe
+            // truncate or append.
+            for _ in 0..1 + next() % 4 {
+                if bytes.is_empty() {
+                    break;
+                }
+                let r = next();
+                let at = if r % 2 == 0 {
+                    r as usize % bytes.len().min(200)
+                } else {
+                    r as usize % bytes.len()
+                };
+                bytes[at] = match (r >> 32) % 3 {
+                    0 => (r >> 40) as u8,
+                    1 => b"0123456789 \n-."[(r >> 40) as usize % 14],
+                    _ => bytes[at].wrapping_add(1),
+                };
+            }
+            match next() % 3 {
+                0 => bytes.truncate(next() as usize % (bytes.len() + 1)),
+                1 => bytes.push(next() as u8),
+                _ => {}
+            }
+            let result = if round % 5 == 0 {
+                let capacity = 1 + next() as usize % 64;
+                parse_ply(
+                    io::BufReader::with_capacity(capacity, &bytes[..]),
+                    Path::new("f"),
+                )
+            } else {
+                parse(&bytes)
+            };
+            if let Ok(mesh) = result {
+                mesh.validate(Path::new("fuzz.ply")).unwrap();
+            }
+        }
+    }
+}
