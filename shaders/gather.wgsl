@@ -71,7 +71,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else {
             let n = vec3(r.nx, r.ny, r.nz);
             let d = ray_dir(r);
-            path.pos = ray_origin(r) + r.t * d;
+            path.pos = ray_hit_point(r);
+            path.err = r.herr;
             path.n = select(n, -n, dot(n, d) > 0.0);
             path.albedo = meshes[mesh_of(r.prim)].color.xyz;
             path.depth += 1u;

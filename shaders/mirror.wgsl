@@ -7,7 +7,7 @@
 
 // Mirrors gpu::layout::MirrorCase.
 struct MirrorCase {
-    p: vec4<f32>,      // offset_ray's point (xyz)
+    p: vec4<f32>,      // offset_ray's point (xyz) and distance (w)
     n: vec4<f32>,      // offset_ray's and cosine_dir's normal (xyz)
     u: vec4<f32>,      // cosine_dir's sample (xy)
     words: vec4<u32>,  // hash input, sample2's pixel, dim, index
@@ -32,7 +32,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let c = mirror_in[i];
     var r: MirrorResult;
-    r.offset = vec4(offset_ray(c.p.xyz, c.n.xyz), 0.0);
+    r.offset = vec4(offset_ray(c.p.xyz, c.n.xyz, c.p.w), 0.0);
     r.dir = vec4(cosine_dir(c.n.xyz, c.u.xy), 0.0);
     r.sample = vec4(sample2(c.words.y, c.words.z, c.words.w), 0.0, 0.0);
     let t = tile_pixel(i);

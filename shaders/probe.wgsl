@@ -71,6 +71,7 @@ fn main() {
         put(r.cur_index); put(r.cur_count); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
         put(r.wait_block); put(r.flags);
+        putf(r.hx); putf(r.hy); putf(r.hz); putf(r.herr);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];

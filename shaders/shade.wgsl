@@ -44,7 +44,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             c = albedo * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, d)));
         } else {
             var path: Path;
-            path.pos = ray_origin(r) + r.t * d;
+            path.pos = ray_hit_point(r);
+            path.err = r.herr;
             path.n = select(n, -n, dot(n, d) > 0.0);
             path.alive = 1u;
             path.depth = 0u;

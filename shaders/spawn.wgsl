@@ -15,9 +15,9 @@
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
 
-fn spawn_origin(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+fn spawn_origin(p: vec3<f32>, n: vec3<f32>, err: f32) -> vec3<f32> {
     if shading.offset_mode == 0u {
-        return offset_ray(p, n);
+        return offset_ray(p, n, err);
     }
     return p + shading.epsilon * n;
 }
@@ -62,7 +62,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
             }
             if go {
-                let o = spawn_origin(path.pos, n);
+                let o = spawn_origin(path.pos, n, path.err);
                 r = new_ray(o, dir, tmax, LIVE, flags);
                 live = true;
             }

@@ -9,6 +9,7 @@
 #import dc
 #import intersect
 #import queue
+#import offset
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
 // Per ray `stack_size` entries of (node, entry distance bits).
@@ -75,6 +76,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let dir = ray_dir(r);
         let inv = safe_inverse(dir);
         let sh = make_shear(dir);
+        let camera = (r.flags & FROM_CAMERA) != 0u;
         let base = ray_index * params.stack_size;
         var iters = 0u;
         var tests = 0u;
@@ -181,14 +183,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     tests += 1u;
                     let tri = tri_at(row, l.y);
-                    let t = intersect(tri, org, sh, r.t);
-                    if t > 0.0 {
-                        r.t = t;
+                    let th = intersect(tri, org, sh, r.t, camera);
+                    if th.t > 0.0 {
+                        r.t = th.t;
                         r.hit = cur.index + k;
                         let n = unit_normal(tri);
                         r.nx = n.x;
                         r.ny = n.y;
                         r.nz = n.z;
+                        let p = hit_point(tri, th.b);
+                        r.hx = p.x;
+                        r.hy = p.y;
+                        r.hz = p.z;
+                        r.herr = offset_distance(n, hit_point_error(tri, th.b));
                         r.prim = prim_id_at(row, l.y);
                         // Shadow and occlusion rays need any hit, not the closest.
                         if (r.flags & ANY_HIT) != 0u {

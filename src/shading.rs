@@ -63,8 +63,9 @@ pub enum Light {
 /// How secondary rays leave a surface.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Offset {
-    /// Integer ulps along the normal (Wächter & Binder, Ray Tracing Gems ch. 6).
-    Ulp,
+    /// Past the hit point's rounding error along the normal (pbrt-v4's offset of a hit point
+    /// computed from barycentrics with an error bound).
+    Bound,
     /// A fixed distance along the normal (the classic epsilon, for comparison).
     Epsilon(f32),
 }
@@ -127,7 +128,7 @@ impl Default for Shading {
             lights: [None; MAX_LIGHTS],
             default_light: true,
             ambient: 0.1,
-            offset: Offset::Ulp,
+            offset: Offset::Bound,
             any_hit: true,
             cull: true,
         }
@@ -311,7 +312,7 @@ impl Shading {
         p.sun_dir = v4(sun_to, 0.0);
         p.sun = v4(self.sun, if self.sun_on() { 1.0 } else { 0.0 });
         (p.offset_mode, p.epsilon) = match self.offset {
-            Offset::Ulp => (0, 0.0),
+            Offset::Bound => (0, 0.0),
             Offset::Epsilon(e) => (1, e),
         };
         if self.mode == Mode::Shadows {

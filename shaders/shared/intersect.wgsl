@@ -64,8 +64,17 @@ fn edge(a: vec2<f32>, b: vec2<f32>) -> f32 {
     return select(e, -e, swap);
 }
 
-// Returns the hit distance in (0, tmax), or -1. Degenerate triangles (det == 0) never hit.
-fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
+// A ray's hit on a triangle: distance and barycentrics (of v0, v1, v2); t < 0 when none.
+struct TriHit {
+    t: f32,
+    b: vec3<f32>,
+}
+
+const NO_HIT: TriHit = TriHit(-1.0, vec3(0.0));
+
+// The hit in (0, tmax), or NO_HIT. Degenerate triangles (det == 0) never hit. Unless `camera`
+// (the ray leaves no surface), a hit must be proven in front of the origin despite rounding.
+fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32, camera: bool) -> TriHit {
     let a = tri.v0 - org;
     let b = tri.v1 - org;
     let c = tri.v2 - org;
@@ -76,27 +85,34 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     let v = edge(a2, c2);
     let w = edge(b2, a2);
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
-        return -1.0;
+        return NO_HIT;
     }
     let det = u + v + w;
     if det == 0.0 {
-        return -1.0;
+        return NO_HIT;
     }
     let z = sh.s.z * vec3(a[sh.k.z], b[sh.k.z], c[sh.k.z]);
     let tt = u * z.x + v * z.y + w * z.z;
     // Sign-aware: the hit is in front when tt and det agree in sign.
     let stt = select(tt, -tt, det < 0.0);
     if stt <= 0.0 {
-        return -1.0;
+        return NO_HIT;
     }
     let t = stt / abs(det);
     if t <= 0.0 || t >= tmax {
-        return -1.0;
+        return NO_HIT;
     }
+    let hit = TriHit(t, vec3(u, v, w) / det);
     // A hit closer than the rounding error of t may be behind the origin: a ray leaving a
     // surface would hit it again (pbrt-v4's conservative t; a needle's error grows with its
-    // length over its width, beyond any origin offset).
+    // length over its width, beyond any origin offset). Two cases need no such proof: a ray
+    // from the camera, and a triangle whose vertices all lie in front of the origin by more
+    // than their rounding (t is an average of their distances with the barycentric weights,
+    // so it is positive; pbrt's bound rejects such far, small triangles).
     let max_z = max(max(abs(z.x), abs(z.y)), abs(z.z));
+    if camera || min(min(z.x, z.y), z.z) > gamma(3.0) * max_z {
+        return hit;
+    }
     let max_x = max(max(abs(a2.x), abs(b2.x)), abs(c2.x));
     let max_y = max(max(abs(a2.y), abs(b2.y)), abs(c2.y));
     let max_e = max(max(abs(u), abs(v)), abs(w));
@@ -106,15 +122,27 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> f32 {
     let delta_e = 2.0 * (gamma(2.0) * max_x * max_y + delta_y * max_x + delta_x * max_y);
     let delta_t = 3.0 * (gamma(3.0) * max_e * max_z + delta_e * max_z + delta_z * max_e) / abs(det);
     if t <= delta_t {
-        return -1.0;
+        return NO_HIT;
     }
-    return t;
+    return hit;
 }
 
 // Bound on the relative rounding error of n correctly rounded f32 operations (pbrt's gamma).
 fn gamma(n: f32) -> f32 {
     let u = 5.9604645e-8;  // 2^-24
     return n * u / (1.0 - n * u);
+}
+
+// The hit point from barycentrics b of v0, v1, v2, and a bound on each coordinate's error
+// (pbrt-v4's, with room for WGSL's 2.5-ulp division in b and for b's sum missing 1 by a few
+// ulps): computed this way, rather than as origin + t * direction, the error scales with the
+// triangle's coordinates, not with the ray's length.
+fn hit_point(tri: Tri, b: vec3<f32>) -> vec3<f32> {
+    return b.x * tri.v0 + b.y * tri.v1 + b.z * tri.v2;
+}
+
+fn hit_point_error(tri: Tri, b: vec3<f32>) -> vec3<f32> {
+    return gamma(10.0) * (abs(b.x * tri.v0) + abs(b.y * tri.v1) + abs(b.z * tri.v2));
 }
 
 fn max3(v: vec3<f32>) -> f32 {

@@ -31,16 +31,23 @@ struct RayState {
     nx: f32, ny: f32, nz: f32,
     // The block this ray suspended on, or NONE: until it arrives the ray only renews its request.
     wait_block: u32,
-    flags: u32,   // ANY_HIT
+    flags: u32,   // ANY_HIT, FROM_CAMERA
+    // The closest hit's point, from its barycentrics, and how far along the normal a new ray's
+    // origin must move to be past its rounding error (hit_point_error, offset_distance).
+    hx: f32, hy: f32, hz: f32,
+    herr: f32,
 }
 
 // RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
 const ANY_HIT: u32 = 1u;
+// RayState.flags: the ray starts at the camera, on no surface: it cannot hit the surface it
+// leaves, so a hit needs no proof that it lies in front of the origin beyond rounding.
+const FROM_CAMERA: u32 = 2u;
 
 // A ray that has not started traversal: no hit, at the root, nothing read yet.
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32) -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, 0u, status, 0u, 0u, NONE, NONE,
-                    0.0, 0.0, 0.0, NONE, flags);
+                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {
@@ -49,6 +56,10 @@ fn ray_origin(r: RayState) -> vec3<f32> {
 
 fn ray_dir(r: RayState) -> vec3<f32> {
     return vec3(r.dx, r.dy, r.dz);
+}
+
+fn ray_hit_point(r: RayState) -> vec3<f32> {
+    return vec3(r.hx, r.hy, r.hz);
 }
 
 // Whether a ray can be traced: finite origin, direction and tmax (checked on the bits: WGSL

@@ -23,7 +23,7 @@ struct ShadeParams {
     max_depth: u32,
     rr_depth: u32,       // Russian roulette from this bounce on
     light_count: u32,
-    offset_mode: u32,    // 0: integer-ulp offset along the normal, 1: fixed epsilon
+    offset_mode: u32,    // 0: past the hit point's error along the normal, 1: fixed epsilon
     epsilon: f32,
     ambient: f32,        // shadows: ambient term
     any_hit: u32,        // RayState.flags of shadow and occlusion rays (ANY_HIT, or 0)
@@ -47,7 +47,7 @@ struct Path {
     albedo: vec3<f32>,
     pixel: u32,        // y * width + x: keys the sampler
     tp: vec3<f32>,     // path throughput
-    pad0: u32,
+    err: f32,          // how far along n a new ray's origin moves (offset_ray)
     l: vec3<f32>,      // radiance gathered so far
     pad1: u32,
 }

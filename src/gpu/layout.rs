@@ -60,6 +60,9 @@ pub mod flags {
     pub const FIRST_SAMPLE: u32 = 4;
     /// RayState: stop at the first hit found.
     pub const ANY_HIT: u32 = 1;
+    /// RayState: the ray starts at the camera, on no surface (no proof of a positive hit
+    /// distance beyond rounding is needed).
+    pub const FROM_CAMERA: u32 = 2;
 }
 
 /// `RayState` in `shaders/shared/ray.wgsl`.
@@ -82,10 +85,14 @@ pub struct RayState {
     pub normal: [f32; 3],
     /// The block the ray suspended on, or `NONE`.
     pub wait_block: u32,
-    /// `flags::ANY_HIT` for shadow and occlusion rays.
+    /// `flags::ANY_HIT` for shadow and occlusion rays, `flags::FROM_CAMERA` for primary rays.
     pub flags: u32,
+    /// The closest hit's point from its barycentrics, and the distance along the normal that
+    /// moves a new ray's origin past its rounding error.
+    pub hit_point: [f32; 3],
+    pub hit_error: f32,
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 80);
+const _: () = assert!(std::mem::size_of::<RayState>() == 96);
 
 /// `RayState.status` values.
 pub mod status {
@@ -186,7 +193,7 @@ pub struct ShadeParams {
     pub max_depth: u32,
     pub rr_depth: u32,
     pub light_count: u32,
-    /// 0: integer-ulp offset along the normal; 1: fixed epsilon.
+    /// 0: past the hit point's error bound along the normal; 1: fixed epsilon.
     pub offset_mode: u32,
     pub epsilon: f32,
     pub ambient: f32,
@@ -217,7 +224,8 @@ pub struct Path {
     pub pixel: u32,
     /// Throughput.
     pub tp: [f32; 3],
-    pub pad0: u32,
+    /// How far along `n` a new ray's origin moves.
+    pub err: f32,
     /// Radiance gathered so far.
     pub l: [f32; 3],
     pub pad1: u32,

@@ -588,7 +588,19 @@ impl<'g> Tracer<'g> {
     /// A ray with a NaN or infinite origin or direction component, a zero direction, or a `tmax`
     /// that is NaN or not positive is a miss (the trace kernel checks, so rays made on the GPU
     /// get the same treatment). `tmax = +inf` means no limit (the kernel's `FAR`, 3e38).
+    ///
+    /// The rays are taken to leave surfaces (spawned rays): a hit must be proven in front of
+    /// the origin despite rounding. [`Tracer::trace_camera_rays`] traces rays that leave none.
     pub fn trace_rays(&mut self, rays: &[Ray]) -> Result<Vec<Option<RayHit>>> {
+        self.trace_rays_flagged(rays, 0)
+    }
+
+    /// [`Tracer::trace_rays`] for rays from a camera, on no surface, as `raygen` makes them.
+    pub fn trace_camera_rays(&mut self, rays: &[Ray]) -> Result<Vec<Option<RayHit>>> {
+        self.trace_rays_flagged(rays, flags::FROM_CAMERA)
+    }
+
+    fn trace_rays_flagged(&mut self, rays: &[Ray], ray_flags: u32) -> Result<Vec<Option<RayHit>>> {
         let mut out = Vec::with_capacity(rays.len());
         let mut stats = FrameStats::default();
         for chunk in rays.chunks(self.batch.rays_cap as usize) {
@@ -604,6 +616,7 @@ impl<'g> Tracer<'g> {
                     cur_count: NONE,
                     prim: NONE,
                     wait_block: NONE,
+                    flags: ray_flags,
                     ..RayState::default()
                 })
                 .collect();
@@ -635,6 +648,8 @@ impl<'g> Tracer<'g> {
                     t: r.t,
                     prim: r.prim,
                     normal: r.normal,
+                    point: r.hit_point,
+                    error: r.hit_error,
                 })
             }));
         }
@@ -665,4 +680,8 @@ pub struct RayHit {
     pub prim: u32,
     /// Unit geometric normal `normalize((v1 - v0) x (v2 - v0))`.
     pub normal: [f32; 3],
+    /// The hit point from its barycentrics, and how far along the normal a ray leaving it must
+    /// start (`mirror::offset::offset_ray(point, n, error)` spawns as the kernels do).
+    pub point: [f32; 3],
+    pub error: f32,
 }

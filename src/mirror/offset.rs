@@ -1,27 +1,48 @@
-//! Secondary-ray origins, as `offset_ray` in `shaders/shared/offset.wgsl`: Wächter & Binder, "A
-//! Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems, chapter 6).
+//! Secondary-ray origins, as in `shaders/shared/offset.wgsl` (pbrt-v4's `OffsetRayOrigin`): the
+//! hit point, with a bound on its error, moves along the normal past that bound and then one
+//! float further.
 
-/// Coordinates smaller than this are offset by a fixed amount (ulps vanish near zero).
-pub const ORIGIN: f32 = 1.0 / 32.0;
-/// The fixed offset near zero, times the normal.
-pub const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-/// Ulps per unit of the normal's component far from zero.
-pub const INT_SCALE: f32 = 256.0;
+/// `offset_distance`: how far along unit normal `n` a point with per-coordinate error `err`
+/// must move.
+pub fn offset_distance(n: [f32; 3], err: [f32; 3]) -> f32 {
+    n[0].abs() * err[0] + n[1].abs() * err[1] + n[2].abs() * err[2]
+}
 
-/// `offset_ray`, bit for bit: `p` moved along `n` (a unit normal on the side the new ray
-/// leaves to) by `256 n` ulps per component, or by `n / 65536` where a component is within 1/32
-/// of zero. Non-finite inputs come back non-finite (the tracer treats such rays as misses).
-pub fn offset_ray(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
+/// `next_up`: the next float above `x` (from either zero, the smallest positive one).
+pub fn next_up(x: f32) -> f32 {
+    let v = if x == 0.0 { 0.0f32 } else { x };
+    let b = v.to_bits();
+    f32::from_bits(if v >= 0.0 { b + 1 } else { b - 1 })
+}
+
+/// `next_down`: the next float below `x`.
+pub fn next_down(x: f32) -> f32 {
+    let v = if x == 0.0 { -0.0f32 } else { x };
+    let b = v.to_bits();
+    f32::from_bits(if v > 0.0 { b - 1 } else { b + 1 })
+}
+
+/// `offset_ray`: `p` moved `d` along unit normal `n` (pointing to the side the new ray leaves
+/// on), each moved coordinate then one float further. `fused` computes `d * n + p` with one
+/// rounding, as a GPU compiler that contracts to a fused multiply-add does; the guarantee holds
+/// either way.
+pub fn offset_ray_with(p: [f32; 3], n: [f32; 3], d: f32, fused: bool) -> [f32; 3] {
     std::array::from_fn(|i| {
-        if p[i].abs() < ORIGIN {
-            p[i] + FLOAT_SCALE * n[i]
+        let offset = d * n[i];
+        let q = if fused { d.mul_add(n[i], p[i]) } else { p[i] + offset };
+        if offset > 0.0 {
+            next_up(q)
+        } else if offset < 0.0 {
+            next_down(q)
         } else {
-            // `as` truncates towards zero (and saturates), as WGSL's f32 to i32 conversion does.
-            let of = (INT_SCALE * n[i]) as i32;
-            let of = if p[i] < 0.0 { -of } else { of };
-            f32::from_bits((p[i].to_bits() as i32).wrapping_add(of) as u32)
+            q
         }
     })
+}
+
+/// [`offset_ray_with`] without contraction, the arithmetic WGSL's `offset_ray` writes.
+pub fn offset_ray(p: [f32; 3], n: [f32; 3], d: f32) -> [f32; 3] {
+    offset_ray_with(p, n, d, false)
 }
 
 #[cfg(test)]
@@ -29,37 +50,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn moves_by_ulps_away_from_the_surface() {
-        let p = [1.0e6, -3.0, 0.0];
-        let o = offset_ray(p, [1.0, 0.0, 0.0]);
-        assert_eq!(o[0].to_bits(), p[0].to_bits() + 256);
-        assert_eq!(o[1], p[1]);
-        assert_eq!(o[2], 0.0);
-        // Negative coordinates move towards the normal too.
-        let o = offset_ray(p, [0.0, 1.0, -1.0]);
-        assert!(o[1] > p[1] && o[2] < 0.0);
-        assert_eq!(o[1].to_bits(), p[1].to_bits() - 256);
-        assert_eq!(o[2], -FLOAT_SCALE);
+    fn moves_past_the_bound_and_one_float_further() {
+        let p = [1.0e6f32, -3.0, 0.0];
+        let o = offset_ray(p, [1.0, 0.0, 0.0], 0.0);
+        // No distance: the moved coordinate still steps one float away; the others stay.
+        assert_eq!(o[0].to_bits(), p[0].to_bits() + 1);
+        assert_eq!((o[1], o[2]), (p[1], p[2]));
+        let o = offset_ray(p, [0.0, 0.6, -0.8], 0.5);
+        assert_eq!(o[0], p[0]);
+        assert!(o[1] > p[1] + 0.3 - 1e-6 && o[1] < p[1] + 0.3 + 1e-5, "{}", o[1]);
+        assert!(o[2] < -0.4 && o[2] > -0.4 - 1e-6, "{}", o[2]);
+        // From zero both ways.
+        assert_eq!(next_up(0.0), f32::from_bits(1));
+        assert_eq!(next_up(-0.0), f32::from_bits(1));
+        assert_eq!(next_down(0.0), -f32::from_bits(1));
+        assert_eq!(next_down(1.0), 1.0 - f32::EPSILON / 2.0);
+        assert_eq!(next_up(-1.0), -1.0 + f32::EPSILON / 2.0);
     }
 
     #[test]
-    fn offset_moves_along_the_normal() {
-        for p in [
-            [1.0f32, -2.0, 3.0e5],
-            [0.001, -0.001, 0.0],
-            [-7.0e6, 1.0e-3, 5.0],
-        ] {
-            let n = [0.0f32, 0.6, 0.8];
-            let q = offset_ray(p, n);
-            assert_eq!(q[0], p[0], "a zero normal component moves nothing");
-            assert!(q[1] > p[1] && q[2] > p[2], "{p:?} -> {q:?}");
-        }
+    fn distance_weighs_each_error_by_the_normal() {
+        assert_eq!(offset_distance([0.0, -0.6, 0.8], [5.0, 1.0, 2.0]), 0.6 + 1.6);
     }
 
     #[test]
     fn non_finite_stays_non_finite() {
-        let o = offset_ray([f32::NAN, f32::INFINITY, 1.0], [0.0, 0.0, f32::NAN]);
-        assert!(o[0].is_nan() && !o[1].is_finite());
-        assert_eq!(o[2], 1.0);
+        let o = offset_ray([f32::NAN, f32::INFINITY, 1.0], [0.0, 0.0, f32::NAN], 1.0);
+        assert!(o[0].is_nan() && !o[1].is_finite() && o[2].is_nan());
     }
 }

@@ -2,7 +2,7 @@
 //! f64 reference tracer for visibility, and the GPU's own sampler, offset and hemisphere mapping
 //! (`crate::mirror`), so GPU and CPU shoot the same secondary rays up to float rounding.
 
-use crate::mirror::offset::offset_ray;
+use crate::mirror::offset::{offset_distance, offset_ray};
 use crate::mirror::sampling::{cosine_dir, sample2};
 use crate::reference::{Ray, Reference};
 use crate::scene::{CameraBasis, Model};
@@ -40,14 +40,21 @@ pub fn reference_image(
             let Some(hit) = reference.closest_hit(&ray) else {
                 return background;
             };
-            let p: [f32; 3] =
-                std::array::from_fn(|a| (f64::from(basis.origin[a]) + hit.t * d[a]) as f32);
+            // The hit point from barycentrics in f64, rounded to f32 (half an ulp of error),
+            // offset past that error as the GPU offsets past its own bound.
+            let tri = model.triangles[hit.prim as usize];
+            let b = [1.0 - hit.u - hit.v, hit.u, hit.v];
+            let exact: [f64; 3] = std::array::from_fn(|a| {
+                (0..3).map(|k| b[k] * f64::from(tri[k][a])).sum::<f64>()
+            });
+            let p = exact.map(|c| c as f32);
+            let err = p.map(|c| c.abs() * f32::EPSILON);
             let mut n = hit.normal.map(|c| c as f32);
             if dot(n, ray.dir) > 0.0 {
                 n = n.map(|c| -c);
             }
             let o = match shading.offset {
-                Offset::Ulp => offset_ray(p, n),
+                Offset::Bound => offset_ray(p, n, offset_distance(n, err)),
                 Offset::Epsilon(e) => std::array::from_fn(|a| p[a] + e * n[a]),
             };
             let visible = |dir: [f32; 3], tmax: f32| {

@@ -112,6 +112,8 @@ fn every_member_reads_back_through_the_shader() {
             normal: [16.5, 17.5, 18.5],
             wait_block: 19,
             flags: 20,
+            hit_point: [21.5, 22.5, 23.5],
+            hit_error: 24.5,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -128,6 +130,8 @@ fn every_member_reads_back_through_the_shader() {
             normal: [-0.5, 0.25, 1e-3],
             wait_block: u32::MAX,
             flags: 86,
+            hit_point: [-87.0, 88.0, -89.0],
+            hit_error: 1e-7,
         },
     ];
     let out = tracer.probe(params, &rays, &shading).unwrap();
@@ -203,6 +207,7 @@ fn host_structs_match_naga_layouts() {
         "sp" => sp, "status" => status, "steps" => steps, "cur_index" => cur_index,
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
+        "hx" => hit_point, "hy" => hit_point + 4, "hz" => hit_point + 8, "herr" => hit_error,
     });
     sized(w, size_of::<RayState>());
     let w = same_layout!(MeshInfo, "MeshInfo", {
@@ -245,7 +250,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<ShadeParams>());
     let w = same_layout!(Path, "Path", {
         "pos" => pos, "alive" => alive, "n" => n, "depth" => depth, "albedo" => albedo,
-        "pixel" => pixel, "tp" => tp, "pad0" => pad0, "l" => l, "pad1" => pad1,
+        "pixel" => pixel, "tp" => tp, "err" => err, "l" => l, "pad1" => pad1,
     });
     sized(w, size_of::<Path>());
     let w = same_layout!(MirrorCase, "MirrorCase", {

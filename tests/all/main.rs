@@ -10,6 +10,7 @@ mod gpu_vs_cpu;
 mod layout;
 mod mirror;
 mod robust;
+mod scale;
 mod shaders;
 mod shading;
 mod trace_loop;

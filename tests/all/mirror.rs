@@ -4,7 +4,7 @@
 use crate::common::*;
 use dcrt::gpu::layout::{MirrorCase, Params};
 use dcrt::gpu::probe::run_mirror;
-use dcrt::mirror::offset::offset_ray;
+use dcrt::mirror::offset::offset_ray_with;
 use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
 use dcrt::mirror::tiles::tile_pixel;
 
@@ -49,8 +49,13 @@ fn cases(n: usize) -> Vec<MirrorCase> {
     (0..n)
         .map(|_| {
             let n3 = m.normal();
+            // Offset distances from zero to far beyond the coordinates' ulps.
+            let d = match m.next() % 4 {
+                0 => 0.0,
+                _ => 10f32.powf(16.0 * m.unit() - 9.0),
+            };
             MirrorCase {
-                p: [m.coord(), m.coord(), m.coord(), 0.0],
+                p: [m.coord(), m.coord(), m.coord(), d],
                 n: [n3[0], n3[1], n3[2], 0.0],
                 u: [m.unit(), m.unit(), 0.0, 0.0],
                 words: [
@@ -94,16 +99,21 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
 
 #[test]
 fn offset_ray_matches_the_gpu_bit_for_bit() {
-    // Integer ulp steps, and one add and multiply near zero: exact in IEEE f32 on both sides.
+    // One multiply and one add (or one fused multiply-add, where the GPU compiler contracts
+    // them), then a step of one float: exact in IEEE f32 on both sides.
     let gpu = gpu();
     let cases = cases(4096);
     let out = run_mirror(&gpu, &params(), &cases).unwrap();
     for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
-        let p = [c.p[0], c.p[1], c.p[2]];
+        let (p, d) = ([c.p[0], c.p[1], c.p[2]], c.p[3]);
         let n = [c.n[0], c.n[1], c.n[2]];
-        let cpu = offset_ray(p, n).map(f32::to_bits);
         let gpu: [u32; 3] = std::array::from_fn(|a| r.offset[a].to_bits());
-        assert_eq!(gpu, cpu, "offset_ray({p:?}, {n:?}), case {i}");
+        let plain = offset_ray_with(p, n, d, false).map(f32::to_bits);
+        let fused = offset_ray_with(p, n, d, true).map(f32::to_bits);
+        assert!(
+            gpu == plain || gpu == fused,
+            "offset_ray({p:?}, {n:?}, {d}), case {i}: GPU {gpu:?}, CPU {plain:?} or {fused:?}"
+        );
     }
 }
 
