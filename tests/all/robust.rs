@@ -263,6 +263,12 @@ struct Reintersection {
     spawned: usize,
     gpu_self: usize,
     cpu_self: usize,
+    /// Spawned origins not strictly on the side of the exact plane their ray leaves to; rays
+    /// within the computed normal's error of the plane, and triangles within rounding of flat,
+    /// where that side is not asked.
+    wrong_side: usize,
+    grazing: usize,
+    flat: usize,
 }
 
 /// The origin of a ray leaving `hit` in direction `w`: its hit point offset past its error to
@@ -340,27 +346,68 @@ fn reintersect(seed: u64, triangles: usize, spawned: usize, signed: bool) -> Rei
             .iter()
             .filter(|h| h.is_some())
             .count();
+        // Exactly: is each origin strictly on the side of the triangle's plane it leaves to?
+        // Asked only where the question has an answer in f32: of triangles whose normal f32
+        // can compute (not within rounding of flat), for rays that leave to the same side of
+        // the exact plane as of the computed one (a ray within the normal's error of the plane
+        // leaves to no side that f32 can tell).
+        let c = |p: [f32; 3]| robust::Coord3D {
+            x: f64::from(p[0]),
+            y: f64::from(p[1]),
+            z: f64::from(p[2]),
+        };
+        let (e1, e2) = (sub(v[1], v[0]), sub(v[2], v[0]));
+        let normal = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let len = |x: [f64; 3]| x.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if len(normal) < 1e-6 * len(e1) * len(e2) {
+            out.flat += 1;
+            continue;
+        }
+        for r in &rays {
+            let exact: f64 = (0..3).map(|a| normal[a] * f64::from(r.dir[a])).sum();
+            let computed: f32 = (0..3).map(|a| hit.normal[a] * r.dir[a]).sum();
+            if (exact > 0.0) != (computed > 0.0) {
+                out.grazing += 1;
+                continue;
+            }
+            // orient3d > 0: the point is below the plane, against (v1 - v0) x (v2 - v0).
+            let below = robust::orient3d(c(tri[0]), c(tri[1]), c(tri[2]), c(r.origin));
+            if -below * exact <= 0.0 {
+                out.wrong_side += 1;
+            }
+        }
     }
     eprintln!(
         "reintersection (signs {}): {} of {} triangles hit, {} spawned rays, {} hit \
-         their triangle again on the GPU, {} in the reference",
+         their triangle again on the GPU, {} in the f64 reference; {} origins on the wrong side \
+         of the exact plane ({} grazing rays and {} flat triangles not asked)",
         if signed { "random" } else { "positive" },
         out.tested,
         out.triangles,
         out.spawned,
         out.gpu_self,
-        out.cpu_self
+        out.cpu_self,
+        out.wrong_side,
+        out.grazing,
+        out.flat
     );
     out
 }
 
 /// pbrt-v4's reintersection test with the kernels' hit points and offsets, as pbrt runs it
 /// (positive coordinates) and with random signs (harder: a hit point near zero on a triangle
-/// with far vertices). Pass: no spawned ray hits its own triangle again, on the GPU nor in the
-/// f64 reference (so the origin is on the right side of the exact triangle, not only of the
-/// GPU's rounding); at least 3/4 of the triangles are hit by their first ray (a miss is a
-/// needle narrower than the f32 spacing at its length, whose hit distance f32 cannot resolve:
-/// the conservative test rejects it, as pbrt's does).
+/// with far vertices). Pass: no spawned ray hits its own triangle again on the GPU, and every
+/// origin lies strictly on the side of the triangle's exact plane that its ray leaves to
+/// (Shewchuk's exact orientation predicate), wherever f32 can tell that side (see
+/// `reintersect`): no tracer, however precise, could hit the triangle from there. At least 3/4 of the triangles are hit by their first ray (a miss is a needle
+/// narrower than the f32 spacing at its length, whose hit distance f32 cannot resolve: the
+/// conservative test rejects it, as pbrt's does). The f64 reference's own count is printed, not
+/// asserted: the offsets are now a few ulps of the hit point, and for coordinates of 1e7 and
+/// more f64's rounding of the intersection is as large, so it reports hits from the right side.
 fn spawned_rays_never_hit_their_own_triangle(signed: bool) {
     let r = reintersect(3, 48, 4096, signed);
     assert!(r.tested * 4 >= r.triangles * 3, "{r:?}");
@@ -369,8 +416,8 @@ fn spawned_rays_never_hit_their_own_triangle(signed: bool) {
         "GPU: spawned rays hit their own triangle: {r:?}"
     );
     assert_eq!(
-        r.cpu_self, 0,
-        "reference: spawned rays hit their own triangle: {r:?}"
+        r.wrong_side, 0,
+        "spawned origins behind the surface they leave: {r:?}"
     );
 }
 
