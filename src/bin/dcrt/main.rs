@@ -15,7 +15,7 @@ use dcrt::scene::{Scene, check_image_size};
 use dcrt::shading::{Mode, Offset, Shading};
 use std::path::{Path, PathBuf};
 
-mod bench_shading;
+mod bench;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -780,7 +780,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         }
         let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
         let small = |v: u32| if v == 1024 { 32 } else { v };
-        let args = bench_shading::Args {
+        let args = bench::shading::Args {
             width: small(a.width),
             height: small(a.height),
             triangles: if a.triangles == 1_000_000 {
@@ -792,7 +792,7 @@ fn bench(a: BenchArgs) -> Result<()> {
             json: a.json,
             plot: a.plot.as_deref(),
         };
-        return bench_shading::run(&gpu, &args);
+        return bench::shading::run(&gpu, &args);
     }
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,

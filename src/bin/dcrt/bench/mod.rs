@@ -1,0 +1,3 @@
+//! `dcrt bench`: the measurements behind the README's figures.
+
+pub mod shading;
