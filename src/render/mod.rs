@@ -1,5 +1,7 @@
 //! The single-process pipeline: scene → model → BVH → blocks → GPU frame, or a prepared block
-//! file → GPU frame.
+//! file → GPU frame; `frames` is the loop over a sequence of frames.
+
+pub mod frames;
 
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
