@@ -1,3 +1,78 @@
-//! `dcrt bench`: the measurements behind the README's figures.
+//! `dcrt bench`: the measurements behind the README's figures. Primary-ray throughput per BVH
+//! preset and block store (`trace`), the distributed-cache sweep (`dc`), shading time against
+//! error (`shading`), and cluster jobs under mpirun (`cluster`).
 
+mod cluster;
+mod dc;
 pub mod shading;
+mod trace;
+
+use crate::BenchArgs;
+use crate::checks::check_budget;
+use anyhow::{Context, Result, bail};
+use dcrt::blocks::Format;
+use dcrt::gpu::Gpu;
+use dcrt::scene::generate::Generator;
+use dcrt::scene::{Scene, check_image_size};
+
+pub fn bench(a: BenchArgs) -> Result<()> {
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    check_image_size(a.width, a.height)?;
+    check_budget(a.gpu.step_budget)?;
+    if a.shading {
+        if a.max_spp == 0 {
+            bail!("--max-spp must be at least 1");
+        }
+        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+        let small = |v: u32| if v == 1024 { 32 } else { v };
+        let args = shading::Args {
+            width: small(a.width),
+            height: small(a.height),
+            triangles: if a.triangles == 1_000_000 {
+                50_000
+            } else {
+                a.triangles
+            },
+            max_spp: a.max_spp,
+            json: a.json,
+            plot: a.plot.as_deref(),
+        };
+        return shading::run(&gpu, &args);
+    }
+    let scene = match &a.scene {
+        Some(p) => Scene::load(p)?,
+        None => {
+            let g = Generator::parse(&a.generator).with_context(|| {
+                format!(
+                    "unknown generator '{}' (known: {})",
+                    a.generator,
+                    Generator::NAMES.join(", ")
+                )
+            })?;
+            Scene::generated(g, a.triangles, a.width, a.height)
+        }
+    };
+    let format = Format::new(a.gpu.block_size)?;
+    if a.cluster {
+        return cluster::run(&a, format);
+    }
+    let model = scene.load_model()?;
+    let camera = scene.camera_or_default(&model);
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    if a.dc {
+        return dc::run(&a, &gpu, &scene, model, camera, format);
+    }
+    trace::run(&a, &gpu, &scene, model, camera, format)
+}
+
+pub fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
