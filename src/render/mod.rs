@@ -10,7 +10,7 @@ use crate::dc::source::{LocalFile, VirtualRanks};
 use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
-use crate::gpu::tracer::{DcSetup, Frame, FrameStats, GpuModel, Meshes, Settings, Tracer};
+use crate::gpu::tracer::{DcSetup, GpuModel, Meshes, Settings, Tracer};
 use crate::scene::{Camera, Model, Scene};
 use std::path::Path;
 use std::time::Instant;
@@ -396,15 +396,4 @@ fn tracer<'g>(
             Tracer::new(gpu, &model, settings, Some(setup))
         }
     }
-}
-
-/// Renders one frame of `camera` at `width` x `height`.
-pub fn render_frame(
-    tracer: &mut Tracer<'_>,
-    camera: &Camera,
-    width: u32,
-    height: u32,
-    background: [f32; 3],
-) -> Result<(Frame, FrameStats)> {
-    tracer.render(&camera.basis(width, height), background)
 }

@@ -8,7 +8,8 @@ use dcrt::blocks::Format;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::Settings;
 use dcrt::output;
-use dcrt::render::{Loaded, render_frame};
+use dcrt::render::Loaded;
+use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
 use dcrt::scene::check_image_size;
 use dcrt::shading::Shading;
 use std::path::Path;
@@ -85,65 +86,58 @@ pub fn render(a: RenderArgs) -> Result<()> {
             loaded.model_bytes() as f64 / 1048576.0
         ),
     }
-    for i in 0..a.frames {
-        let camera = loaded
-            .camera
-            .orbit(std::f64::consts::TAU * f64::from(i) / f64::from(a.frames));
-        let (frame, stats) = render_frame(&mut tracer, &camera, width, height, loaded.background)?;
-        let numbered = |p: &Path| output::numbered(p, i, a.frames);
-        report.push(
-            serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": &stats}),
-        );
-        let png = numbered(&a.output);
-        output::write_png_exposed(&png, &frame, a.exposure)?;
-        if let Some(exr) = &a.exr {
-            output::write_exr(&numbered(exr), &frame, &a.aov)?;
-        }
-        let mut trace = tracer.take_trace();
-        if let Some(dir) = &a.trace {
-            trace.summary.frame = i;
-            if dc.is_none() {
-                trace.summary.frame_ms = stats.seconds * 1e3;
-                trace.summary.trace_ms = stats.trace_seconds * 1e3;
-                trace.summary.shade_ms = stats.shade_seconds * 1e3;
-                trace.summary.rounds = stats.rounds;
-                trace.summary.ranks = 1;
-                trace.summary.role = "single".into();
-                trace.summary.hit_rate = 1.0;
+    let plan = FramePlan {
+        frames: a.frames,
+        view: View::Orbit(loaded.camera),
+        role: Role::one_process(&tracer),
+        trace_dir: a.trace.as_deref(),
+    };
+    let bg = loaded.background;
+    run_images(
+        &mut tracer,
+        &plan,
+        width,
+        height,
+        bg,
+        &mut |i, frame, stats| {
+            let numbered = |p: &Path| output::numbered(p, i, a.frames);
+            report.push(
+                serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": stats}),
+            );
+            let png = numbered(&a.output);
+            output::write_png_exposed(&png, &frame, a.exposure)?;
+            if let Some(exr) = &a.exr {
+                output::write_exr(&numbered(exr), &frame, &a.aov)?;
             }
-            trace.write(dir)?;
-        }
-        eprintln!(
-            "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
-            shading.mode.name(),
-            shading.spp,
-            loaded.triangles,
-            loaded
-                .build_seconds
-                .filter(|_| i == 0)
-                .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
-                .unwrap_or_default(),
-            width,
-            height,
-            stats.seconds * 1e3,
-            stats.max_live_rounds,
-            if dc.is_some() {
-                format!(
-                    ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
-                    stats.fault_rounds,
-                    if stats.lookups > 0 {
-                        stats.hits as f64 / stats.lookups as f64
-                    } else {
-                        1.0
-                    },
-                    stats.fetched_blocks
-                )
-            } else {
-                String::new()
-            },
-            png.display()
-        );
-    }
+            eprintln!(
+                "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+                shading.mode.name(),
+                shading.spp,
+                loaded.triangles,
+                loaded
+                    .build_seconds
+                    .filter(|_| i == 0)
+                    .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
+                    .unwrap_or_default(),
+                width,
+                height,
+                stats.seconds * 1e3,
+                stats.max_live_rounds,
+                if dc.is_some() {
+                    format!(
+                        ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
+                        stats.fault_rounds,
+                        hit_rate(stats),
+                        stats.fetched_blocks
+                    )
+                } else {
+                    String::new()
+                },
+                png.display()
+            );
+            Ok(())
+        },
+    )?;
     if let Some(path) = &a.cluster.stats {
         let all =
             serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});

@@ -1,13 +1,15 @@
 //! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
 //! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
 
+use super::frame_stats;
 use crate::{BenchArgs, settings};
 use anyhow::{Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
-use dcrt::render::{DcOptions, Prepared, render_frame};
-use dcrt::scene::Scene;
+use dcrt::render::frames::View;
+use dcrt::render::{DcOptions, Prepared};
+use dcrt::scene::{Camera, Model, Scene};
 
 #[derive(serde::Serialize)]
 struct DcRow {
@@ -62,8 +64,8 @@ pub fn run(
     a: &BenchArgs,
     gpu: &Gpu,
     scene: &Scene,
-    model: dcrt::scene::Model,
-    camera: dcrt::scene::Camera,
+    model: Model,
+    camera: Camera,
     format: Format,
 ) -> Result<()> {
     if a.frames < 2 {
@@ -95,17 +97,16 @@ pub fn run(
             None => prepared.tracer(gpu, settings(&a.gpu))?,
             Some(o) => prepared.tracer_dc(gpu, settings(&a.gpu), o)?,
         };
-        let mut warm: Vec<dcrt::gpu::tracer::FrameStats> = Vec::new();
-        let mut first_ms = 0.0;
-        for i in 0..a.frames {
-            let cam = camera.orbit(std::f64::consts::TAU * f64::from(i) / f64::from(a.frames));
-            let (_, s) = render_frame(&mut tracer, &cam, a.width, a.height, scene.background)?;
-            if i == 0 {
-                first_ms = s.seconds * 1e3;
-            } else {
-                warm.push(s);
-            }
-        }
+        let size = (a.width, a.height);
+        let all = frame_stats(
+            &mut tracer,
+            View::Orbit(camera),
+            a.frames,
+            size,
+            scene.background,
+        )?;
+        let first_ms = all[0].seconds * 1e3;
+        let warm = &all[1..];
         let n = warm.len() as f64;
         let sum = |f: &dyn Fn(&dcrt::gpu::tracer::FrameStats) -> f64| -> f64 {
             warm.iter().map(f).sum::<f64>()

@@ -12,6 +12,8 @@ use crate::checks::check_budget;
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
 use dcrt::gpu::Gpu;
+use dcrt::gpu::tracer::{FrameStats, Tracer};
+use dcrt::render::frames::{FramePlan, Role, View, run_images};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 
@@ -65,6 +67,35 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         return dc::run(&a, &gpu, &scene, model, camera, format);
     }
     trace::run(&a, &gpu, &scene, model, camera, format)
+}
+
+/// The statistics of `frames` frames seen from `view` at `width` x `height`.
+pub fn frame_stats(
+    tracer: &mut Tracer<'_>,
+    view: View,
+    frames: u32,
+    (width, height): (u32, u32),
+    background: [f32; 3],
+) -> Result<Vec<FrameStats>> {
+    let plan = FramePlan {
+        frames,
+        view,
+        role: Role::one_process(tracer),
+        trace_dir: None,
+    };
+    let mut all = Vec::new();
+    run_images(
+        tracer,
+        &plan,
+        width,
+        height,
+        background,
+        &mut |_, _, stats| {
+            all.push(stats.clone());
+            Ok(())
+        },
+    )?;
+    Ok(all)
 }
 
 pub fn median(v: &mut [f64]) -> f64 {

@@ -1,6 +1,6 @@
 //! `dcrt bench`: BVH build time and primary-ray throughput, per obvhs preset and block store.
 
-use super::median;
+use super::{frame_stats, median};
 use crate::{BenchArgs, settings};
 use anyhow::Result;
 use dcrt::blocks::Format;
@@ -8,7 +8,8 @@ use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::Settings;
-use dcrt::render::{Prepared, render_frame};
+use dcrt::render::Prepared;
+use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
 
 #[derive(serde::Serialize)]
@@ -76,17 +77,18 @@ pub fn run(
                 ..settings(&a.gpu)
             };
             let mut tracer = prepared.tracer(gpu, s)?;
-            // Warm-up: pipeline compilation and first-touch of buffers.
-            let (_, _) = render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
-            let mut times = Vec::new();
-            let mut last = None;
-            for _ in 0..a.runs {
-                let (_, s) =
-                    render_frame(&mut tracer, &camera, a.width, a.height, scene.background)?;
-                times.push(s.seconds * 1e3);
-                last = Some(s);
-            }
-            let s = last.unwrap_or_default();
+            // A warm-up frame (pipeline compilation and first-touch of buffers), then the runs.
+            let frames = u32::try_from(a.runs).map_or(u32::MAX, |r| r.saturating_add(1));
+            let size = (a.width, a.height);
+            let runs = frame_stats(
+                &mut tracer,
+                View::Fixed(camera),
+                frames,
+                size,
+                scene.background,
+            )?;
+            let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
+            let s = runs.last().cloned().unwrap_or_default();
             let med = median(&mut times);
             rows.push(BenchRow {
                 preset: format!("{preset:?}").to_lowercase(),
