@@ -8,8 +8,8 @@ use dcrt::blocks::Format;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::Settings;
 use dcrt::output;
-use dcrt::render::Loaded;
 use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
+use dcrt::render::{Loaded, mib};
 use dcrt::scene::check_image_size;
 use dcrt::shading::Shading;
 use std::path::Path;
@@ -73,18 +73,14 @@ pub fn render(a: RenderArgs) -> Result<()> {
                  model",
                 o.rank,
                 o.ranks,
-                m.resident_bytes as f64 / 1048576.0,
-                m.cache_bytes as f64 / 1048576.0,
-                o.cache
-                    .lines(loaded.block_count(), loaded.format().block_bytes),
+                mib(m.resident_bytes),
+                mib(m.cache_bytes),
+                o.lines(loaded.block_count(), loaded.format()),
                 o.map,
-                loaded.model_bytes() as f64 / 1048576.0
+                mib(loaded.model_bytes())
             );
         }
-        None => eprintln!(
-            "replicated: {:.1} MiB of blocks",
-            loaded.model_bytes() as f64 / 1048576.0
-        ),
+        None => eprintln!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
     }
     let plan = FramePlan {
         frames: a.frames,

@@ -1,12 +1,12 @@
 //! `dcrt bench --cluster`: the driver of the mpirun jobs of `dcrt::cluster::bench`.
 
+use super::{MODELS, emit};
 use crate::BenchArgs;
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::CacheSize;
-use dcrt::render::Prepared;
+use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
-use dcrt::scene::generate::Generator;
 
 /// `bench --cluster`: prepares the models once, then runs the jobs of `cluster::bench`.
 pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
@@ -25,7 +25,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
                 .map_or("scene".into(), |s| s.to_string_lossy().into_owned()),
             Scene::load(p)?,
         )],
-        None => [Generator::Rm, Generator::Assembly]
+        None => MODELS
             .into_iter()
             .map(|g| {
                 let scene = Scene::generated(g, a.triangles, a.width, a.height);
@@ -42,7 +42,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         eprintln!(
             "{name}: {} triangles, {:.1} MiB of blocks",
             p.model.triangles.len(),
-            p.blocks.words.len() as f64 * 4.0 / 1048576.0
+            mib(p.blocks.bytes())
         );
         models.push((name.clone(), path));
     }
@@ -84,10 +84,8 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         _ => Vec::new(),
     };
     let _ = std::fs::remove_dir_all(&dir);
-    if a.json {
-        let all = serde_json::json!({"frame_times": rows, "display": display});
-        println!("{}", serde_json::to_string_pretty(&all)?);
-    } else {
+    let all = serde_json::json!({"frame_times": rows, "display": display});
+    emit(a.json, &all, |_| {
         print!("{}", table(&rows));
         println!(
             "\ndisplay benchmark ({} ranks, 1920x1080, {} frames):",
@@ -108,6 +106,5 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
                 d["ratio"].as_f64().unwrap_or(f64::NAN)
             );
         }
-    }
-    Ok(())
+    })
 }

@@ -1,14 +1,14 @@
 //! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
 //! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
 
-use super::frame_stats;
+use super::{Table, emit, frame_stats};
 use crate::{BenchArgs, settings};
 use anyhow::{Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
 use dcrt::render::frames::View;
-use dcrt::render::{DcOptions, Prepared};
+use dcrt::render::{DcOptions, Prepared, mib};
 use dcrt::scene::{Camera, Model, Scene};
 
 #[derive(serde::Serialize)]
@@ -73,7 +73,6 @@ pub fn run(
     }
     let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
     let blocks = &prepared.blocks;
-    let mib = |b: u64| b as f64 / 1048576.0;
     let mut configs: Vec<Option<DcOptions>> = vec![None];
     for map in [CacheMap::Ize, CacheMap::Demarle] {
         for c in &a.caches {
@@ -93,10 +92,7 @@ pub fn run(
                 .flat_map(|_| a.caches.iter().map(|c| Some(c.clone()))),
         ),
     ) {
-        let mut tracer = match cfg {
-            None => prepared.tracer(gpu, settings(&a.gpu))?,
-            Some(o) => prepared.tracer_dc(gpu, settings(&a.gpu), o)?,
-        };
+        let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
         let size = (a.width, a.height);
         let all = frame_stats(
             &mut tracer,
@@ -119,7 +115,7 @@ pub fn run(
                 (
                     m.resident_bytes,
                     m.cache_bytes,
-                    o.cache.lines(blocks.count(), format.block_bytes),
+                    o.lines(blocks.count(), format),
                 )
             }
         };
@@ -209,10 +205,10 @@ pub fn run(
         rows,
         memory,
     };
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
-    }
+    emit(a.json, &report, print)
+}
+
+fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
@@ -226,62 +222,65 @@ pub fn run(
         report.ranks,
         report.frames
     );
-    println!(
-        "{:<10} {:<5} {:<8} {:>6} {:>9} {:>9} {:>10} {:>7} {:>7} {:>9} {:>6} {:>7} {:>8} {:>7} {:>6} {:>6} {:>6} {:>6}",
-        "config",
-        "cache",
-        "map",
-        "lines",
-        "frame ms",
-        "cold ms",
-        "MiB/frame",
-        "rounds",
-        "faultR",
-        "miss/rnd",
-        "hit",
-        "nod/blk",
-        "res MiB",
-        "$ MiB",
-        "gpu%",
-        "sync%",
-        "fetch%",
-        "upl%"
-    );
+    let t = Table(&[
+        ("config", -10),
+        ("cache", -5),
+        ("map", -8),
+        ("lines", 6),
+        ("frame ms", 9),
+        ("cold ms", 9),
+        ("MiB/frame", 10),
+        ("rounds", 7),
+        ("faultR", 7),
+        ("miss/rnd", 9),
+        ("hit", 6),
+        ("nod/blk", 7),
+        ("res MiB", 8),
+        ("$ MiB", 7),
+        ("gpu%", 6),
+        ("sync%", 6),
+        ("fetch%", 6),
+        ("upl%", 6),
+    ]);
+    t.header();
     for r in &report.rows {
-        println!(
-            "{:<10} {:<5} {:<8} {:>6} {:>9.1} {:>9.1} {:>10.2} {:>7.1} {:>7.1} {:>9.0} {:>6.3} {:>7.2} {:>8.1} {:>7.1} {:>6.0} {:>6.0} {:>6.1} {:>6.1}",
-            r.config,
-            r.cache.as_deref().unwrap_or("-"),
+        t.row(&[
+            r.config.clone(),
+            r.cache.clone().unwrap_or_else(|| "-".into()),
             r.cache_map
                 .map(|m| format!("{m:?}").to_lowercase())
                 .unwrap_or_else(|| "-".into()),
-            r.cache_lines,
-            r.frame_ms,
-            r.first_frame_ms,
-            r.fetched_bytes_per_frame / 1048576.0,
-            r.rounds_per_frame,
-            r.fault_rounds_per_frame,
-            r.misses_per_fault_round,
-            r.hit_rate,
-            r.nodes_per_block_entry,
-            r.resident_mib,
-            r.cache_mib,
-            r.gpu_share * 100.0,
-            r.sync_share * 100.0,
-            r.fetch_share * 100.0,
-            r.upload_share * 100.0
-        );
+            r.cache_lines.to_string(),
+            format!("{:.1}", r.frame_ms),
+            format!("{:.1}", r.first_frame_ms),
+            format!("{:.2}", r.fetched_bytes_per_frame / 1048576.0),
+            format!("{:.1}", r.rounds_per_frame),
+            format!("{:.1}", r.fault_rounds_per_frame),
+            format!("{:.0}", r.misses_per_fault_round),
+            format!("{:.3}", r.hit_rate),
+            format!("{:.2}", r.nodes_per_block_entry),
+            format!("{:.1}", r.resident_mib),
+            format!("{:.1}", r.cache_mib),
+            format!("{:.0}", r.gpu_share * 100.0),
+            format!("{:.0}", r.sync_share * 100.0),
+            format!("{:.1}", r.fetch_share * 100.0),
+            format!("{:.1}", r.upload_share * 100.0),
+        ]);
     }
     println!("memory per rank against ranks (largest resident share + a 1/8 cache):");
-    println!(
-        "{:>6} {:>12} {:>10} {:>10}",
-        "ranks", "resident", "cache", "total MiB"
-    );
+    let t = Table(&[
+        ("ranks", 6),
+        ("resident", 12),
+        ("cache", 10),
+        ("total MiB", 10),
+    ]);
+    t.header();
     for m in &report.memory {
-        println!(
-            "{:>6} {:>12.1} {:>10.1} {:>10.1}",
-            m.ranks, m.resident_mib_max, m.cache_mib, m.total_mib
-        );
+        t.row(&[
+            m.ranks.to_string(),
+            format!("{:.1}", m.resident_mib_max),
+            format!("{:.1}", m.cache_mib),
+            format!("{:.1}", m.total_mib),
+        ]);
     }
-    Ok(())
 }

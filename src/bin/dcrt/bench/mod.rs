@@ -98,6 +98,54 @@ pub fn frame_stats(
     Ok(all)
 }
 
+/// The generated models of `--shading`, and of `--cluster` without a scene: the open rm model
+/// and the occluded assembly.
+pub const MODELS: [Generator; 2] = [Generator::Rm, Generator::Assembly];
+
+/// With `--json` the report as one JSON object on stdout, else the text `print` writes.
+pub fn emit<R: serde::Serialize>(json: bool, report: &R, print: impl FnOnce(&R)) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    } else {
+        print(report);
+    }
+    Ok(())
+}
+
+/// A text table: columns one space apart, each of a width and right-aligned, or left-aligned
+/// when the width is negative (as printf's `%-9s`). The header and the rows share the widths;
+/// cells come formatted.
+pub struct Table(pub &'static [(&'static str, i32)]);
+
+impl Table {
+    pub fn header(&self) {
+        let names: Vec<String> = self.0.iter().map(|c| c.0.to_string()).collect();
+        self.row(&names);
+    }
+
+    pub fn row(&self, cells: &[String]) {
+        println!("{}", self.line(cells));
+    }
+
+    fn line(&self, cells: &[String]) -> String {
+        debug_assert_eq!(cells.len(), self.0.len());
+        let padded: Vec<String> = self
+            .0
+            .iter()
+            .zip(cells)
+            .map(|(&(_, w), c)| {
+                let n = w.unsigned_abs() as usize;
+                if w < 0 {
+                    format!("{c:<n$}")
+                } else {
+                    format!("{c:>n$}")
+                }
+            })
+            .collect();
+        padded.join(" ")
+    }
+}
+
 pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -105,5 +153,41 @@ pub fn median(v: &mut [f64]) -> f64 {
         v[n / 2]
     } else {
         (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_lines_pad_like_format_widths() {
+        let t = Table(&[("name", -9), ("ms", 10), ("hit", 6), ("same", 5)]);
+        let cells = [
+            "rm".to_string(),
+            format!("{:.1}", 12.345),
+            format!("{:.3}", 0.5),
+            true.to_string(),
+        ];
+        assert_eq!(
+            t.line(&cells),
+            format!("{:<9} {:>10.1} {:>6.3} {:>5}", "rm", 12.345, 0.5, true)
+        );
+        let long = [
+            "a-name-longer-than-9".to_string(),
+            "1".into(),
+            "2".into(),
+            "3".into(),
+        ];
+        assert_eq!(
+            t.line(&long),
+            "a-name-longer-than-9          1      2     3"
+        );
+    }
+
+    #[test]
+    fn median_of_odd_and_even_counts() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
     }
 }

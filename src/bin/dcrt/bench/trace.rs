@@ -1,6 +1,6 @@
 //! `dcrt bench`: BVH build time and primary-ray throughput, per obvhs preset and block store.
 
-use super::{frame_stats, median};
+use super::{Table, emit, frame_stats, median};
 use crate::{BenchArgs, settings};
 use anyhow::Result;
 use dcrt::blocks::Format;
@@ -126,44 +126,42 @@ pub fn run(
         rows: Vec::new(),
     };
     let report = BenchReport { rows, ..report };
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
-    }
+    emit(a.json, &report, print)
+}
+
+fn print(report: &BenchReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles), {}x{}, median of {} runs after a warm-up",
         report.scene, report.triangles, report.width, report.height, report.runs
     );
-    println!(
-        "{:<9} {:<8} {:>10} {:>6} {:>12} {:>10} {:>10} {:>9} {:>9} {:>7} {:>7}",
-        "preset",
-        "store",
-        "build ms",
-        "depth",
-        "trace ms",
-        "min",
-        "max",
-        "Mrays/s",
-        "steps/ray",
-        "trace%",
-        "shade%"
-    );
+    let t = Table(&[
+        ("preset", -9),
+        ("store", -8),
+        ("build ms", 10),
+        ("depth", 6),
+        ("trace ms", 12),
+        ("min", 10),
+        ("max", 10),
+        ("Mrays/s", 9),
+        ("steps/ray", 9),
+        ("trace%", 7),
+        ("shade%", 7),
+    ]);
+    t.header();
     for r in &report.rows {
-        println!(
-            "{:<9} {:<8} {:>10.1} {:>6} {:>12.1} {:>10.1} {:>10.1} {:>9.2} {:>9.1} {:>7.0} {:>7.0}",
-            r.preset,
+        t.row(&[
+            r.preset.clone(),
             format!("{:?}", r.store).to_lowercase(),
-            r.bvh_build_ms,
-            r.bvh_depth,
-            r.trace_ms_median,
-            r.trace_ms_min,
-            r.trace_ms_max,
-            r.mrays_per_s,
-            r.steps_per_ray,
-            r.trace_share * 100.0,
-            r.shade_share * 100.0
-        );
+            format!("{:.1}", r.bvh_build_ms),
+            r.bvh_depth.to_string(),
+            format!("{:.1}", r.trace_ms_median),
+            format!("{:.1}", r.trace_ms_min),
+            format!("{:.1}", r.trace_ms_max),
+            format!("{:.2}", r.mrays_per_s),
+            format!("{:.1}", r.steps_per_ray),
+            format!("{:.0}", r.trace_share * 100.0),
+            format!("{:.0}", r.shade_share * 100.0),
+        ]);
     }
-    Ok(())
 }
