@@ -51,6 +51,12 @@ pub fn render(a: RenderArgs) -> Result<()> {
             "--display-bench measures the display of a cluster: run it under mpirun with 2 or more ranks"
         );
     }
+    one_process(&a, format)
+}
+
+/// The frames of one process, replicated or as one virtual rank of a distributed cache: PNG (and
+/// EXR) per frame, a line on stderr, traces and `--stats` when asked.
+fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let mut report = Vec::new();
