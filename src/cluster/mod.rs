@@ -19,9 +19,8 @@ use crate::dc::{CacheMap, CacheSize};
 use crate::error::{Error, Result};
 use crate::gpu::tracer::Settings;
 use crate::output::Aov;
-use crate::shading::Shading;
+use crate::shading::Overrides;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Duration;
 
 /// How many ranks the launcher started, from the variables mpirun and srun set; `None` when this
@@ -92,9 +91,11 @@ pub struct Options {
     pub frames: u32,
     pub trace: Option<PathBuf>,
     pub adapter: Option<String>,
-    /// Tracer settings; their shading is replaced by `shade` applied to the scene's.
+    /// Tracer settings; their shading is replaced by the scene's with `shade` applied, by each
+    /// rank once it has read the scene (so that a rank that cannot read it still takes part in
+    /// the agreement).
     pub settings: Settings,
-    pub shade: ShadeWith,
+    pub shade: Overrides,
     pub preset: Preset,
     pub format: Format,
     /// The distributed cache's size and mapping; `None` replicates the model on every rank.
@@ -117,17 +118,6 @@ pub struct Options {
     /// Where rank 0 writes the run's figures as JSON (frame times, the render ranks'
     /// statistics, the display benchmark).
     pub stats: Option<PathBuf>,
-}
-
-/// How the command line changes the scene's shading settings, applied by each rank once it has
-/// read the scene (so that a rank that cannot read it still takes part in the agreement).
-#[derive(Clone)]
-pub struct ShadeWith(pub Arc<dyn Fn(Shading) -> Result<Shading> + Send + Sync>);
-
-impl std::fmt::Debug for ShadeWith {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("ShadeWith(..)")
-    }
 }
 
 /// Runs this process's role of a cluster render. Returns only on rank 0's success or a clean

@@ -154,7 +154,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
         height: opts.height.unwrap_or(of.height),
     };
     check_image_size(image.width, image.height)?;
-    let shading = (opts.shade.0)(of.shading)?;
+    let shading = opts.shade.apply(of.shading)?;
     let Some(index) = roles.render_index(rank) else {
         return Ok(Opened {
             image,
