@@ -1,17 +1,39 @@
-//! Cluster mode (DESIGN.md section 4, chapter 5): `mpirun -n K dcrt render ...`. Rank 0 is the
-//! display, rank 1 the load balancer, the others render (with 2 ranks the display also
-//! balances; with 1 rank there is no MPI at all). Render ranks trace the tiles the balancer
+//! Cluster mode (docs/ARCHITECTURE.md, Cluster; chapter 5): `mpirun -n K dcrt render ...`.
+//! Rank 0 is the display, rank 1 the load balancer, the others render (with 2 ranks the display
+//! also balances; with 1 rank there is no MPI at all). Render ranks trace the tiles the balancer
 //! hands them and send the pixels to the display; with a distributed cache each holds only its
 //! own blocks and reads borrowed ones from their owners with one-sided MPI.
+//!
+//! `node` is one process from MPI set-up to the end: `startup` (open, agree), then
+//! `render_rank` or `coordinator` (`balancer` and `display`). `protocol` holds the messages,
+//! `mailbox` sends and waits for them, `schedule` decides the tiles, `pixels` packs and
+//! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
 
-pub mod balance;
 pub mod bench;
 pub mod pixels;
+pub mod protocol;
+pub mod schedule;
 
+#[cfg(feature = "mpi")]
+mod balancer;
+#[cfg(feature = "mpi")]
+mod coordinator;
+#[cfg(feature = "mpi")]
+mod display;
+#[cfg(feature = "mpi")]
+mod display_bench;
+#[cfg(feature = "mpi")]
+mod failure;
+#[cfg(feature = "mpi")]
+mod mailbox;
 #[cfg(feature = "mpi")]
 mod node;
 #[cfg(feature = "mpi")]
+mod render_rank;
+#[cfg(feature = "mpi")]
 mod rma;
+#[cfg(feature = "mpi")]
+mod startup;
 
 use crate::blocks::Format;
 use crate::bvh::Preset;
@@ -130,7 +152,7 @@ pub fn run(opts: &Options) -> Result<()> {
     #[cfg(not(feature = "mpi"))]
     {
         let _ = opts;
-        Err(Error::Invalid(
+        Err(Error::Mpi(
             "started by an MPI launcher, but this dcrt was built without the `mpi` feature".into(),
         ))
     }
