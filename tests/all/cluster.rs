@@ -219,7 +219,15 @@ fn check_traces(dir: &Path, k: u32, frames: u32, (w, h): (u32, u32)) -> Vec<u64>
     let render: Vec<u32> = (first..k).collect();
     let mut fetched = vec![0u64; render.len()];
     for f in 0..frames {
-        let grants: Vec<Value> = of(&records(dir, f, balancer), "grant").cloned().collect();
+        let at_balancer = records(dir, f, balancer);
+        let role = of(&at_balancer, "frame").next().expect("a frame record")["role"].clone();
+        let want_role = if k == 2 {
+            "display+balancer"
+        } else {
+            "balancer"
+        };
+        assert_eq!(role, want_role, "frame {f}: rank {balancer}'s role");
+        let grants: Vec<Value> = of(&at_balancer, "grant").cloned().collect();
         let mut covered = vec![0u32; (w * h) as usize];
         for g in grants.iter().filter(|g| g["kind"] != "end") {
             let [x, y, gw, gh] = rect(g);
