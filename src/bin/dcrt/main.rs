@@ -16,7 +16,7 @@ use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
 use dcrt::output::Aov;
 use dcrt::render::DcOptions;
-use dcrt::shading::{Mode, Offset, Shading};
+use dcrt::shading::{Mode, Overrides, Shading};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -114,28 +114,22 @@ struct ShadeArgs {
 }
 
 impl ShadeArgs {
-    fn apply(&self, base: Shading) -> Result<Shading> {
-        let mut s = base;
-        s.mode = self.mode.unwrap_or(s.mode);
-        s.spp = self.spp.unwrap_or(s.spp);
-        s.seed = self.seed.unwrap_or(s.seed);
-        s.ao_rays = self.ao_rays.unwrap_or(s.ao_rays);
-        s.ao_distance = self.ao_distance.unwrap_or(s.ao_distance);
-        s.max_depth = self.max_depth.unwrap_or(s.max_depth);
-        if let Some(e) = self.epsilon {
-            s.offset = Offset::Epsilon(e);
+    fn overrides(&self) -> Overrides {
+        Overrides {
+            mode: self.mode,
+            spp: self.spp,
+            seed: self.seed,
+            ao_rays: self.ao_rays,
+            ao_distance: self.ao_distance,
+            max_depth: self.max_depth,
+            epsilon: self.epsilon,
+            closest_hit_shadows: self.closest_hit_shadows,
+            no_cull: self.no_cull,
         }
-        s.any_hit &= !self.closest_hit_shadows;
-        s.cull &= !self.no_cull;
-        s.validate().map_err(|e| {
-            anyhow::anyhow!(
-                "{}",
-                e.to_string()
-                    .replace("spp must", "--spp must")
-                    .replace("ao rays", "--ao-rays")
-            )
-        })?;
-        Ok(s)
+    }
+
+    fn apply(&self, base: Shading) -> Result<Shading> {
+        Ok(self.overrides().apply(base)?)
     }
 }
 
@@ -363,14 +357,7 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         trace: a.trace.clone(),
         adapter: a.gpu.adapter.clone(),
         settings: settings(&a.gpu),
-        shade: {
-            let shade = a.shade.clone();
-            dcrt::cluster::ShadeWith(std::sync::Arc::new(move |base| {
-                shade
-                    .apply(base)
-                    .map_err(|e| dcrt::Error::Invalid(e.to_string()))
-            }))
-        },
+        shade: a.shade.overrides(),
         exposure: a.exposure,
         preset: a.gpu.bvh_preset,
         format,
