@@ -14,7 +14,7 @@ use crate::dc::trace::FrameTrace;
 use crate::error::Result;
 use crate::gpu::Idle;
 use crate::gpu::tracer::{DcSetup, FrameStats, Rect, Tracer, ms};
-use crate::scene::CameraBasis;
+use crate::render::frames::{FrameBody, FrameCtx, FramePlan, Role, View, run_frames};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use serde_json::json;
@@ -123,27 +123,32 @@ pub fn run(
         roles,
         rank,
         opts,
+        size: (
+            opts.width.unwrap_or(loaded.width),
+            opts.height.unwrap_or(loaded.height),
+        ),
         background: loaded.background,
         packer: Packer::new(wire, opts.message_bytes, opts.exposure),
         start: Instant::now(),
         kept: BTreeMap::new(),
         failure: Failure::from_env(rank),
+        sent: Sent::default(),
     };
-    let (width, height) = (
-        opts.width.unwrap_or(loaded.width),
-        opts.height.unwrap_or(loaded.height),
-    );
-    let frames = (0..opts.frames).try_for_each(|frame| {
-        let camera = if opts.display_bench {
-            loaded.camera.turned_around()
+    let plan = FramePlan {
+        frames: opts.frames,
+        view: if opts.display_bench {
+            View::Fixed(loaded.camera.turned_around())
         } else {
-            loaded
-                .camera
-                .orbit(std::f64::consts::TAU * f64::from(frame) / f64::from(opts.frames))
-        };
-        me.frame(&mut tracer, frame, &camera.basis(width, height))
-    });
-    or_abort(rank, frames);
+            View::Orbit(loaded.camera)
+        },
+        role: Role {
+            name: roles.name(rank),
+            rank,
+            ranks: roles.size,
+        },
+        trace_dir: opts.trace.as_deref(),
+    };
+    or_abort(rank, run_frames(&mut tracer, &plan, &mut me));
     if opts.display_bench {
         // Only once the display has every frame: the stream must not mix with pixels.
         world.barrier();
@@ -170,6 +175,8 @@ struct RenderRank<'a> {
     roles: Roles,
     rank: u32,
     opts: &'a Options,
+    /// The image's width and height.
+    size: (u32, u32),
     background: [f32; 3],
     packer: Packer,
     /// When the rank started rendering: the origin of the tile records' times.
@@ -177,16 +184,31 @@ struct RenderRank<'a> {
     /// The display benchmark keeps the first frame's tiles to send again.
     kept: BTreeMap<(u32, u32, u32, u32), Vec<u8>>,
     failure: Failure,
+    /// What the frame being rendered sent, for its report.
+    sent: Sent,
 }
 
-impl RenderRank<'_> {
-    /// Frame `frame` seen through `basis`: asks for tiles until the balancer ends the frame,
-    /// traces them and sends their pixels, then the frame's report.
-    fn frame(&mut self, tracer: &mut Tracer<'_>, frame: u32, basis: &CameraBasis) -> Result<()> {
+/// The tiles, messages and bytes a frame sent to the display.
+#[derive(Default)]
+struct Sent {
+    events: Vec<serde_json::Value>,
+    messages: u32,
+    bytes: u64,
+}
+
+impl FrameBody for RenderRank<'_> {
+    /// Asks for tiles until the balancer ends the frame, traces them and sends their pixels.
+    fn trace(&mut self, ctx: FrameCtx<'_, '_>) -> Result<()> {
         let (world, opts, rank) = (self.world, self.opts, self.rank);
+        let FrameCtx {
+            frame,
+            camera,
+            tracer,
+            stats,
+        } = ctx;
+        let basis = camera.basis(self.size.0, self.size.1);
         let balancer = self.roles.balancer();
         let ask = Ask { frame }.encode();
-        let mut stats = tracer.begin_frame();
         let mut events = Vec::new();
         let mut queue: VecDeque<Rect> = VecDeque::new();
         send(world, balancer, Tag::Ask, &ask);
@@ -246,7 +268,7 @@ impl RenderRank<'_> {
             let encoded = match self.kept.get(&key) {
                 Some(p) => p.clone(),
                 None => {
-                    let p = tracer.render_rect(basis, self.background, rect, &mut stats)?;
+                    let p = tracer.render_rect(&basis, self.background, rect, stats)?;
                     let e = self.packer.encode(&p);
                     if opts.display_bench {
                         self.kept.insert(key, e.clone());
@@ -271,37 +293,27 @@ impl RenderRank<'_> {
             messages += 1;
             send(world, Roles::DISPLAY, Tag::Pixels, &m);
         }
-        tracer.end_frame(&mut stats);
-        let mut trace = tracer.take_trace();
-        fill_summary(&mut trace, frame, rank, self.roles, &stats);
-        let report = FrameReport {
-            frame,
-            rank,
-            tiles: events.len() as u64,
+        self.sent = Sent {
+            events,
             messages,
             bytes: sent_bytes,
-            stats: &stats,
         };
-        send(world, Roles::DISPLAY, Tag::Done, &report.encode()?);
-        if let Some(dir) = &opts.trace {
-            trace.events = events;
-            trace.write(dir)?;
-        }
         Ok(())
     }
-}
 
-fn fill_summary(trace: &mut FrameTrace, frame: u32, rank: u32, roles: Roles, stats: &FrameStats) {
-    let s = &mut trace.summary;
-    s.frame = frame;
-    s.rank = rank;
-    s.ranks = roles.size;
-    s.role = roles.name(rank).into();
-    s.frame_ms = stats.seconds * 1e3;
-    s.trace_ms = stats.trace_seconds * 1e3;
-    s.shade_ms = stats.shade_seconds * 1e3;
-    s.rounds = stats.rounds;
-    if s.lookups == 0 {
-        s.hit_rate = 1.0;
+    /// Sends the frame's report to the display; the tile records go into the frame's trace.
+    fn finish(&mut self, frame: u32, stats: &FrameStats, trace: &mut FrameTrace) -> Result<()> {
+        let sent = std::mem::take(&mut self.sent);
+        let report = FrameReport {
+            frame,
+            rank: self.rank,
+            tiles: sent.events.len() as u64,
+            messages: sent.messages,
+            bytes: sent.bytes,
+            stats,
+        };
+        send(self.world, Roles::DISPLAY, Tag::Done, &report.encode()?);
+        trace.events = sent.events;
+        Ok(())
     }
 }

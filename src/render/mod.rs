@@ -238,16 +238,10 @@ impl Loaded {
     pub fn resident(&self, ranks: Ranks) -> Result<Vec<u32>> {
         match &self.source {
             Source::File(f) => f.read_resident(ranks),
-            Source::Built(b) => {
-                let mut rows = Vec::new();
-                for k in (ranks.rank..b.count()).step_by(ranks.n as usize) {
-                    rows.extend_from_slice(b.block(k));
-                }
-                if !ranks.owns(0) {
-                    rows.extend_from_slice(b.block(0));
-                }
-                Ok(rows)
-            }
+            Source::Built(b) => Ok(ranks
+                .resident_blocks(b.count())
+                .flat_map(|k| b.block(k).iter().copied())
+                .collect()),
         }
     }
 
@@ -365,7 +359,7 @@ impl DcOptions {
     pub fn memory(&self, count: u32, format: Format) -> Result<RankMemory> {
         let ranks = Ranks::new(self.ranks, self.rank)?;
         let bb = u64::from(format.block_bytes);
-        let resident = u64::from(ranks.owned(count) + u32::from(!ranks.owns(0)));
+        let resident = u64::from(ranks.resident_rows(count));
         Ok(RankMemory {
             resident_bytes: resident * bb,
             cache_bytes: u64::from(self.lines(count, format)) * bb,
@@ -399,7 +393,10 @@ fn tracer<'g>(
         Some(o) => {
             let ranks = Ranks::new(o.ranks, o.rank)?;
             let stores = VirtualRanks::new(blocks, o.ranks)?;
-            let resident = stores.resident_rows(o.rank);
+            let resident: Vec<u32> = ranks
+                .resident_blocks(blocks.count())
+                .flat_map(|k| blocks.block(k).iter().copied())
+                .collect();
             let lines = o.lines(blocks.count(), blocks.format);
             let model = GpuModel {
                 resident: &resident,
