@@ -135,6 +135,53 @@ impl Default for Shading {
     }
 }
 
+/// The command line's shading options: each replaces the scene's value when given.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Overrides {
+    pub mode: Option<Mode>,
+    pub spp: Option<u32>,
+    pub seed: Option<u32>,
+    pub ao_rays: Option<u32>,
+    pub ao_distance: Option<f32>,
+    pub max_depth: Option<u32>,
+    /// A fixed ray-origin offset instead of integer ulps.
+    pub epsilon: Option<f32>,
+    pub closest_hit_shadows: bool,
+    pub no_cull: bool,
+}
+
+impl Overrides {
+    /// `base` with the overrides applied, checked; an error names the flag that is wrong.
+    pub fn apply(&self, base: Shading) -> Result<Shading> {
+        let bad = |m: String| Err(Error::Invalid(m));
+        // Checked here, before `validate`, in its order, so that the message names the flag.
+        if let Some(spp) = self.spp
+            && !(1..=MAX_SPP).contains(&spp)
+        {
+            return bad(format!("--spp must be 1..={MAX_SPP}, got {spp}"));
+        }
+        if let Some(rays) = self.ao_rays
+            && !(1..=MAX_AO_RAYS).contains(&rays)
+        {
+            return bad(format!("--ao-rays must be 1..={MAX_AO_RAYS}, got {rays}"));
+        }
+        let mut s = base;
+        s.mode = self.mode.unwrap_or(s.mode);
+        s.spp = self.spp.unwrap_or(s.spp);
+        s.seed = self.seed.unwrap_or(s.seed);
+        s.ao_rays = self.ao_rays.unwrap_or(s.ao_rays);
+        s.ao_distance = self.ao_distance.unwrap_or(s.ao_distance);
+        s.max_depth = self.max_depth.unwrap_or(s.max_depth);
+        if let Some(e) = self.epsilon {
+            s.offset = Offset::Epsilon(e);
+        }
+        s.any_hit &= !self.closest_hit_shadows;
+        s.cull &= !self.no_cull;
+        s.validate()?;
+        Ok(s)
+    }
+}
+
 fn finite_nonneg(v: [f32; 3]) -> bool {
     v.iter().all(|c| c.is_finite() && *c >= 0.0)
 }

@@ -215,12 +215,12 @@ impl DcbFile {
     /// blocks by slot, then the root block unless it owns it.
     pub fn read_resident(&self, ranks: crate::dc::Ranks) -> Result<Vec<u32>> {
         let bw = self.format.words() as usize;
-        let own = ranks.owned(self.count());
-        let rows = own + u32::from(!ranks.owns(0));
+        let rows = ranks.resident_rows(self.count());
         let mut words = vec![0u32; rows as usize * bw];
-        for (s, chunk) in words.chunks_mut(bw).enumerate() {
-            let s = s as u32;
-            let k = if s < own { s * ranks.n + ranks.rank } else { 0 };
+        for (k, chunk) in ranks
+            .resident_blocks(self.count())
+            .zip(words.chunks_mut(bw))
+        {
             self.read_block_into(k, ranks.owner(k), chunk)?;
         }
         Ok(words)

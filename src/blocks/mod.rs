@@ -1,4 +1,4 @@
-//! Fixed-size blocks: the unit of storage, ownership and caching (DESIGN.md section 2).
+//! Fixed-size blocks: the unit of storage, ownership and caching (docs/ARCHITECTURE.md, Blocks).
 //!
 //! One id space holds all blocks: node blocks first (`0..node_blocks`), then triangle blocks. A
 //! block is `block_bytes` long, seen by the GPU as one row of `block_bytes / 16` `Rgba32Uint`

@@ -1,6 +1,6 @@
 //! The BVH: built with obvhs (BVH2, PLOC), converted to our 32-byte node format in the blocked
-//! layout of DESIGN.md section 2 (chapter 5.3.1), with triangles reordered in BVH in-order
-//! (chapter 5.3.2).
+//! layout (docs/ARCHITECTURE.md, BVH and blocks; chapter 5.3.1), with triangles reordered in
+//! BVH in-order (chapter 5.3.2).
 
 pub mod layout;
 

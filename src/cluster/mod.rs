@@ -1,17 +1,39 @@
-//! Cluster mode (DESIGN.md section 4, chapter 5): `mpirun -n K dcrt render ...`. Rank 0 is the
-//! display, rank 1 the load balancer, the others render (with 2 ranks the display also
-//! balances; with 1 rank there is no MPI at all). Render ranks trace the tiles the balancer
+//! Cluster mode (docs/ARCHITECTURE.md, Cluster; chapter 5): `mpirun -n K dcrt render ...`.
+//! Rank 0 is the display, rank 1 the load balancer, the others render (with 2 ranks the display
+//! also balances; with 1 rank there is no MPI at all). Render ranks trace the tiles the balancer
 //! hands them and send the pixels to the display; with a distributed cache each holds only its
 //! own blocks and reads borrowed ones from their owners with one-sided MPI.
+//!
+//! `node` is one process from MPI set-up to the end: `startup` (open, agree), then
+//! `render_rank` or `coordinator` (`balancer` and `display`). `protocol` holds the messages,
+//! `mailbox` sends and waits for them, `schedule` decides the tiles, `pixels` packs and
+//! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
 
-pub mod balance;
 pub mod bench;
 pub mod pixels;
+pub mod protocol;
+pub mod schedule;
 
+#[cfg(feature = "mpi")]
+mod balancer;
+#[cfg(feature = "mpi")]
+mod coordinator;
+#[cfg(feature = "mpi")]
+mod display;
+#[cfg(feature = "mpi")]
+mod display_bench;
+#[cfg(feature = "mpi")]
+mod failure;
+#[cfg(feature = "mpi")]
+mod mailbox;
 #[cfg(feature = "mpi")]
 mod node;
 #[cfg(feature = "mpi")]
+mod render_rank;
+#[cfg(feature = "mpi")]
 mod rma;
+#[cfg(feature = "mpi")]
+mod startup;
 
 use crate::blocks::Format;
 use crate::bvh::Preset;
@@ -19,9 +41,8 @@ use crate::dc::{CacheMap, CacheSize};
 use crate::error::{Error, Result};
 use crate::gpu::tracer::Settings;
 use crate::output::Aov;
-use crate::shading::Shading;
+use crate::shading::Overrides;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Duration;
 
 /// How many ranks the launcher started, from the variables mpirun and srun set; `None` when this
@@ -92,9 +113,11 @@ pub struct Options {
     pub frames: u32,
     pub trace: Option<PathBuf>,
     pub adapter: Option<String>,
-    /// Tracer settings; their shading is replaced by `shade` applied to the scene's.
+    /// Tracer settings; their shading is replaced by the scene's with `shade` applied, by each
+    /// rank once it has read the scene (so that a rank that cannot read it still takes part in
+    /// the agreement).
     pub settings: Settings,
-    pub shade: ShadeWith,
+    pub shade: Overrides,
     pub preset: Preset,
     pub format: Format,
     /// The distributed cache's size and mapping; `None` replicates the model on every rank.
@@ -119,17 +142,6 @@ pub struct Options {
     pub stats: Option<PathBuf>,
 }
 
-/// How the command line changes the scene's shading settings, applied by each rank once it has
-/// read the scene (so that a rank that cannot read it still takes part in the agreement).
-#[derive(Clone)]
-pub struct ShadeWith(pub Arc<dyn Fn(Shading) -> Result<Shading> + Send + Sync>);
-
-impl std::fmt::Debug for ShadeWith {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("ShadeWith(..)")
-    }
-}
-
 /// Runs this process's role of a cluster render. Returns only on rank 0's success or a clean
 /// failure agreed by all ranks; errors in the middle of a frame abort the whole job.
 pub fn run(opts: &Options) -> Result<()> {
@@ -140,7 +152,7 @@ pub fn run(opts: &Options) -> Result<()> {
     #[cfg(not(feature = "mpi"))]
     {
         let _ = opts;
-        Err(Error::Invalid(
+        Err(Error::Mpi(
             "started by an MPI launcher, but this dcrt was built without the `mpi` feature".into(),
         ))
     }

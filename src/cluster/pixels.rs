@@ -3,6 +3,7 @@
 //! display copies them into the frame on several threads. RGB8 (3 B a pixel, already sRGB as
 //! the PNG stores it) by default; whole `Pixel`s (32 B) when the frame goes to EXR.
 
+use super::protocol::{Tag, malformed};
 use crate::error::{Error, Result};
 use crate::gpu::layout::Pixel;
 use crate::gpu::tracer::{Frame, Rect};
@@ -118,11 +119,11 @@ impl Packer {
     }
 }
 
-/// The frame number a pixel message is for.
-pub fn message_frame(msg: &[u8]) -> Result<u32> {
+/// The frame number a pixel message (or any message that starts with one) is for; `None` when
+/// it is too short.
+pub fn message_frame(msg: &[u8]) -> Option<u32> {
     msg.get(..HEADER)
         .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
-        .ok_or_else(|| Error::Invalid(format!("pixel message of {} bytes", msg.len())))
 }
 
 /// One frame being assembled: a lock per row, so copy threads write disjoint rows in parallel.
@@ -146,10 +147,11 @@ impl FrameBuf {
         }
     }
 
-    /// Copies a message's records into the frame; returns the pixels copied.
-    pub fn copy(&self, msg: &[u8]) -> Result<u64> {
+    /// Copies the records of a message from rank `from` into the frame; returns the pixels
+    /// copied.
+    pub fn copy(&self, from: u32, msg: &[u8]) -> Result<u64> {
         let bpp = self.wire.bytes();
-        let bad = |what: &str| Error::Invalid(format!("pixel message: {what}"));
+        let bad = |what: &str| malformed(Tag::Pixels, from, what);
         let mut at = HEADER;
         let mut pixels = 0u64;
         while at < msg.len() {
@@ -217,7 +219,8 @@ impl FrameBuf {
 }
 
 enum Job {
-    Copy(Arc<FrameBuf>, Vec<u8>),
+    /// A message from a rank.
+    Copy(Arc<FrameBuf>, u32, Vec<u8>),
     /// Answers once every job sent before it to this thread is done.
     Fence(Sender<()>),
 }
@@ -242,8 +245,8 @@ impl Copiers {
             handles.push(std::thread::spawn(move || {
                 for job in rx {
                     match job {
-                        Job::Copy(frame, msg) => {
-                            if let Err(e) = frame.copy(&msg) {
+                        Job::Copy(frame, from, msg) => {
+                            if let Err(e) = frame.copy(from, &msg) {
                                 errors
                                     .lock()
                                     .unwrap_or_else(|p| p.into_inner())
@@ -266,11 +269,12 @@ impl Copiers {
         }
     }
 
-    pub fn copy(&mut self, frame: &Arc<FrameBuf>, msg: Vec<u8>) {
+    /// Copies a message from rank `from` into `frame`, on the next thread in turn.
+    pub fn copy(&mut self, frame: &Arc<FrameBuf>, from: u32, msg: Vec<u8>) {
         let tx = &self.senders[self.next];
         self.next = (self.next + 1) % self.senders.len();
         // A thread only stops when its sender is dropped, so the send cannot fail.
-        let _ = tx.send(Job::Copy(frame.clone(), msg));
+        let _ = tx.send(Job::Copy(frame.clone(), from, msg));
     }
 
     /// Waits until every message handed over so far has been copied.
@@ -281,7 +285,7 @@ impl Copiers {
         }
         for _ in &self.senders {
             rx.recv()
-                .map_err(|_| Error::Invalid("a copy thread stopped".into()))?;
+                .map_err(|_| Error::Internal("a copy thread stopped".into()))?;
         }
         match self.errors.lock().unwrap_or_else(|p| p.into_inner()).take() {
             Some(e) => Err(e),
@@ -357,8 +361,8 @@ mod tests {
             let frame = Arc::new(FrameBuf::new(w, h, wire));
             let mut copiers = Copiers::new(3);
             for m in msgs {
-                assert_eq!(message_frame(&m).unwrap(), 7);
-                copiers.copy(&frame, m);
+                assert_eq!(message_frame(&m), Some(7));
+                copiers.copy(&frame, 2, m);
             }
             copiers.fence().unwrap();
             drop(copiers);
@@ -395,8 +399,18 @@ mod tests {
         packer.push(0, r, &tile(r));
         let msg = packer.flush().unwrap();
         let small = FrameBuf::new(10, 10, Wire::Rgb8);
-        assert!(small.copy(&msg).is_err());
-        assert!(small.copy(&msg[..30]).is_err(), "truncated");
-        assert!(message_frame(&[1, 2]).is_err());
+        let protocol = |r: Result<u64>| match r {
+            Err(Error::Protocol(m)) => m,
+            other => panic!("not a protocol error: {other:?}"),
+        };
+        let e = protocol(small.copy(3, &msg));
+        assert!(
+            e.contains("PIXELS message from rank 3") && e.contains("outside"),
+            "{e}"
+        );
+        let big = FrameBuf::new(64, 64, Wire::Rgb8);
+        let e = protocol(big.copy(3, &msg[..30]));
+        assert!(e.contains("truncated"), "{e}");
+        assert_eq!(message_frame(&[1, 2]), None);
     }
 }

@@ -14,9 +14,7 @@ fn check(what: &str, code: c_int) -> Result<()> {
     if code == ffi::MPI_SUCCESS as c_int {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
-            "{what} failed with MPI error {code}"
-        )))
+        Err(Error::Mpi(format!("{what} failed with MPI error {code}")))
     }
 }
 
@@ -72,14 +70,14 @@ impl Window {
     /// them). `out.len()` must be `gets.len() * words`.
     pub fn get_all(&self, gets: &[(u32, u64)], words: usize, out: &mut [u32]) -> Result<()> {
         if out.len() != gets.len() * words {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Mpi(format!(
                 "{} words of room for {} blocks of {words}",
                 out.len(),
                 gets.len()
             )));
         }
-        let count = c_int::try_from(words)
-            .map_err(|_| Error::Invalid(format!("{words} words in one Get")))?;
+        let count =
+            c_int::try_from(words).map_err(|_| Error::Mpi(format!("{words} words in one Get")))?;
         // No MPI_MODE_NOCHECK: it bought nothing measurable. One epoch for the whole run with a
         // flush_all per round gained nothing measurable either.
         // SAFETY: the window is live; `u32` matches MPI_UINT32_T; each destination piece is

@@ -63,6 +63,12 @@ impl Ranks {
         self.owned(count) + u32::from(!self.owns(0))
     }
 
+    /// The block in each resident row, in row order.
+    pub fn resident_blocks(&self, count: u32) -> impl Iterator<Item = u32> + use<> {
+        let root = (!self.owns(0)).then_some(0);
+        (self.rank..count).step_by(self.n as usize).chain(root)
+    }
+
     /// The row of the root block.
     pub fn root_row(&self, count: u32) -> u32 {
         if self.owns(0) { 0 } else { self.owned(count) }
@@ -223,6 +229,7 @@ mod tests {
         let r = Ranks::new(3, 1).unwrap();
         assert_eq!(r.resident_rows(10), 4);
         assert_eq!(r.root_row(10), 3);
+        assert_eq!(r.resident_blocks(10).collect::<Vec<_>>(), [1, 4, 7, 0]);
         let rows: Vec<Option<u32>> = (0..10).map(|k| r.resident_row(k, 10)).collect();
         let want = [
             Some(3),
@@ -242,6 +249,7 @@ mod tests {
         assert_eq!((r0.resident_rows(10), r0.root_row(10)), (4, 0));
         assert_eq!(r0.resident_row(0, 10), Some(0));
         assert_eq!(r0.resident_row(9, 10), Some(3));
+        assert_eq!(r0.resident_blocks(10).collect::<Vec<_>>(), [0, 3, 6, 9]);
     }
 
     #[test]

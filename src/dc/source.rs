@@ -44,16 +44,6 @@ impl VirtualRanks {
     pub fn store_bytes(&self, r: u32) -> u64 {
         self.stores[r as usize].len() as u64 * 4
     }
-
-    /// The blocks rank `r` keeps on its GPU without the cache, in row order: its own blocks by
-    /// slot, then the replicated root block (row = owned count) unless it owns block 0.
-    pub fn resident_rows(&self, r: u32) -> Vec<u32> {
-        let mut rows = self.stores[r as usize].clone();
-        if r != 0 {
-            rows.extend_from_slice(&self.stores[0][..self.block_words]);
-        }
-        rows
-    }
 }
 
 impl BlockSource for VirtualRanks {

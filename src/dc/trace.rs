@@ -1,5 +1,5 @@
-//! Per-frame fault/fetch traces (DESIGN.md section 6): what the cache did in every round, and the
-//! frame's totals, written as JSON Lines, one file per frame and rank.
+//! Per-frame fault/fetch traces (docs/ARCHITECTURE.md, Traces): what the cache did in every
+//! round, and the frame's totals, written as JSON Lines, one file per frame and rank.
 
 use crate::error::{Error, Result};
 use serde::Serialize;

@@ -163,10 +163,11 @@ impl Gpu {
                         Err(e) => return Err(poll_error(e)),
                     }
                     if start.elapsed() > idle.limit {
-                        return Err(Error::Gpu(format!(
-                            "the GPU did not finish its work within {:.0} s",
-                            idle.limit.as_secs_f64()
-                        )));
+                        return Err(Error::Timeout {
+                            what: "end of the GPU's work".into(),
+                            seconds: idle.limit.as_secs_f64(),
+                            likely: Some("the GPU hung or is far too slow"),
+                        });
                     }
                 }
             }

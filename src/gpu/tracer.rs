@@ -390,9 +390,7 @@ impl<'g> Tracer<'g> {
     /// start the frame's clock.
     pub fn begin_frame(&mut self) -> FrameStats {
         if let Some(dc) = self.dc.as_mut() {
-            let frame = dc.trace.summary.frame;
             dc.trace = FrameTrace::default();
-            dc.trace.summary.frame = frame;
         }
         self.frame_start = Instant::now();
         FrameStats::default()
@@ -481,35 +479,10 @@ impl<'g> Tracer<'g> {
         Ok(pixels)
     }
 
-    /// Ends a frame begun with `begin_frame`: its wall time and the cache trace's summary.
+    /// Ends a frame begun with `begin_frame`: its wall time. (The frame loop,
+    /// `render::frames`, makes the trace's summary from the stats.)
     pub fn end_frame(&mut self, stats: &mut FrameStats) {
         stats.seconds = self.frame_start.elapsed().as_secs_f64();
-        if let Some(dc) = self.dc.as_mut() {
-            let s = &mut dc.trace.summary;
-            let ranks = dc.policy.ranks();
-            s.rank = ranks.rank;
-            s.role = "render".into();
-            s.ranks = ranks.n;
-            s.cache_lines = dc.policy.lines();
-            s.cache_map = format!("{:?}", dc.policy.map()).to_lowercase();
-            s.rounds = stats.rounds;
-            s.fault_rounds = stats.fault_rounds;
-            s.lookups = stats.lookups;
-            s.hits = stats.hits;
-            s.misses = stats.misses;
-            s.hit_rate = if stats.lookups > 0 {
-                stats.hits as f64 / stats.lookups as f64
-            } else {
-                1.0
-            };
-            s.fetched_blocks = stats.fetched_blocks;
-            s.fetched_bytes = stats.fetched_bytes;
-            s.frame_ms = stats.seconds * 1e3;
-            s.trace_ms = stats.trace_seconds * 1e3;
-            s.fetch_ms = stats.fetch_seconds * 1e3;
-            s.upload_ms = stats.upload_seconds * 1e3;
-            s.shade_ms = stats.shade_seconds * 1e3;
-        }
     }
 
     /// Submits one direct dispatch of a shading kernel over the batch's pixel slots (no wait).

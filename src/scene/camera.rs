@@ -1,4 +1,5 @@
-//! The pinhole camera of the scene contract (DESIGN.md section 7), with ParaView's names.
+//! The pinhole camera of the scene contract (docs/ARCHITECTURE.md, Cameras and rays), with
+//! ParaView's names.
 
 use crate::error::{Error, Result};
 use glam::DVec3;

@@ -1,5 +1,5 @@
-//! Scenes: the TOML scene file (DESIGN.md section 7), mesh files and procedural generators, and
-//! the flattened triangle model the BVH is built from.
+//! Scenes: the TOML scene file (docs/ARCHITECTURE.md, Scene keys), mesh files and procedural
+//! generators, and the flattened triangle model the BVH is built from.
 
 pub mod camera;
 pub mod generate;

@@ -5,6 +5,7 @@
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Scene};
@@ -56,7 +57,9 @@ fn sweep(g: Generator) {
                     stats.seconds, stats.rounds, stats.fetched_blocks
                 );
                 same(&reference, &frame, &what);
-                let trace = t.take_trace();
+                let mut trace = t.take_trace();
+                let cache = t.cache().map(|(_, lines, map)| (lines, map));
+                trace.summary = summarize(&stats, cache, 0, Role::one_process(&t));
                 let s = &trace.summary;
                 assert_eq!(s.hits + s.misses, s.lookups, "{what}");
                 let served: u64 = trace

@@ -6,6 +6,7 @@ mod cli;
 mod cluster;
 mod common;
 mod dc;
+mod frames;
 mod gpu_vs_cpu;
 mod layout;
 mod mirror;

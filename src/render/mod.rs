@@ -1,5 +1,7 @@
 //! The single-process pipeline: scene → model → BVH → blocks → GPU frame, or a prepared block
-//! file → GPU frame.
+//! file → GPU frame; `frames` is the loop over a sequence of frames.
+
+pub mod frames;
 
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
@@ -8,9 +10,9 @@ use crate::dc::source::{LocalFile, VirtualRanks};
 use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
-use crate::gpu::tracer::{DcSetup, Frame, FrameStats, GpuModel, Meshes, Settings, Tracer};
+use crate::gpu::tracer::{DcSetup, GpuModel, Meshes, Settings, Tracer};
 use crate::scene::{Camera, Model, Scene};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// A model ready for the GPU: triangles, BVH and blocks.
@@ -67,7 +69,8 @@ impl Prepared {
         self.tracer_with(gpu, settings, Some(dc))
     }
 
-    fn tracer_with<'g>(
+    /// A tracer for the replicated model (`dc` None), or for one virtual rank.
+    pub fn tracer_with<'g>(
         &self,
         gpu: &'g Gpu,
         settings: Settings,
@@ -123,14 +126,10 @@ impl Loaded {
     /// Loads `path`: a `.dcb` block file, a scene naming one with `model = "..."`, or a scene of
     /// meshes, prepared on the fly.
     pub fn open(path: &Path, preset: Preset, format: Format) -> Result<Loaded> {
-        if path.extension().is_some_and(|e| e == "dcb") {
-            return Loaded::from_dcb(path, None);
-        }
-        let scene = Scene::load(path)?;
-        if let Some(model) = &scene.model {
-            let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
-            return Loaded::from_dcb(&dcb, Some(&scene));
-        }
+        let scene = match Input::resolve(path)? {
+            Input::Dcb(dcb, scene) => return Loaded::from_dcb(&dcb, scene.as_ref()),
+            Input::Scene(scene) => scene,
+        };
         let p = Prepared::new(&scene, preset, format)?;
         let camera = scene.camera_or_default(&p.model);
         Ok(Loaded {
@@ -222,21 +221,13 @@ impl Loaded {
         };
         let ranks = Ranks::new(o.ranks, o.rank)?;
         let resident = f.read_resident(ranks)?;
-        let model = GpuModel {
-            format: f.format,
-            node_blocks: f.node_blocks,
-            tri_blocks: f.tri_blocks,
-            resident: &resident,
-            meshes: &self.meshes,
-            depth: self.depth,
-        };
         let setup = DcSetup {
             ranks,
-            lines: o.cache.lines(f.count(), f.format.block_bytes),
+            lines: o.lines(f.count(), f.format),
             map: o.map,
             source: Box::new(LocalFile::new(DcbFile::open(&f.path)?, ranks)),
         };
-        Tracer::new(gpu, &model, settings, Some(setup))
+        self.dc_tracer(gpu, settings, &resident, setup)
     }
 }
 
@@ -247,16 +238,10 @@ impl Loaded {
     pub fn resident(&self, ranks: Ranks) -> Result<Vec<u32>> {
         match &self.source {
             Source::File(f) => f.read_resident(ranks),
-            Source::Built(b) => {
-                let mut rows = Vec::new();
-                for k in (ranks.rank..b.count()).step_by(ranks.n as usize) {
-                    rows.extend_from_slice(b.block(k));
-                }
-                if !ranks.owns(0) {
-                    rows.extend_from_slice(b.block(0));
-                }
-                Ok(rows)
-            }
+            Source::Built(b) => Ok(ranks
+                .resident_blocks(b.count())
+                .flat_map(|k| b.block(k).iter().copied())
+                .collect()),
         }
     }
 
@@ -303,19 +288,38 @@ impl Loaded {
             background: l.background,
             shading: l.shading,
         };
-        if path.extension().is_some_and(|e| e == "dcb") {
-            return Loaded::from_dcb(path, None).map(from);
-        }
-        let scene = Scene::load(path)?;
-        if let Some(model) = &scene.model {
-            let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
-            return Loaded::from_dcb(&dcb, Some(&scene)).map(from);
-        }
+        let scene = match Input::resolve(path)? {
+            Input::Dcb(dcb, scene) => return Loaded::from_dcb(&dcb, scene.as_ref()).map(from),
+            Input::Scene(scene) => scene,
+        };
         Ok(ImageOf {
             width: scene.width,
             height: scene.height,
             background: scene.background,
             shading: scene.shading,
+        })
+    }
+}
+
+/// What a render's path names: a block file, with the scene that names it if any, or a scene of
+/// meshes.
+enum Input {
+    Dcb(PathBuf, Option<Scene>),
+    Scene(Scene),
+}
+
+impl Input {
+    fn resolve(path: &Path) -> Result<Input> {
+        if path.extension().is_some_and(|e| e == "dcb") {
+            return Ok(Input::Dcb(path.to_path_buf(), None));
+        }
+        let scene = Scene::load(path)?;
+        Ok(match &scene.model {
+            Some(model) => {
+                let dcb = path.parent().unwrap_or(Path::new(".")).join(model);
+                Input::Dcb(dcb, Some(scene))
+            }
+            None => Input::Scene(scene),
         })
     }
 }
@@ -347,15 +351,25 @@ pub struct RankMemory {
 }
 
 impl DcOptions {
+    /// Cache lines for a model of `count` blocks.
+    pub fn lines(&self, count: u32, format: Format) -> u32 {
+        self.cache.lines(count, format.block_bytes)
+    }
+
     pub fn memory(&self, count: u32, format: Format) -> Result<RankMemory> {
         let ranks = Ranks::new(self.ranks, self.rank)?;
         let bb = u64::from(format.block_bytes);
-        let resident = u64::from(ranks.owned(count) + u32::from(!ranks.owns(0)));
+        let resident = u64::from(ranks.resident_rows(count));
         Ok(RankMemory {
             resident_bytes: resident * bb,
-            cache_bytes: u64::from(self.cache.lines(count, format.block_bytes)) * bb,
+            cache_bytes: u64::from(self.lines(count, format)) * bb,
         })
     }
+}
+
+/// Mebibytes of `bytes`, as messages and reports give memory.
+pub fn mib(bytes: u64) -> f64 {
+    bytes as f64 / 1048576.0
 }
 
 fn tracer<'g>(
@@ -379,8 +393,11 @@ fn tracer<'g>(
         Some(o) => {
             let ranks = Ranks::new(o.ranks, o.rank)?;
             let stores = VirtualRanks::new(blocks, o.ranks)?;
-            let resident = stores.resident_rows(o.rank);
-            let lines = o.cache.lines(blocks.count(), blocks.format.block_bytes);
+            let resident: Vec<u32> = ranks
+                .resident_blocks(blocks.count())
+                .flat_map(|k| blocks.block(k).iter().copied())
+                .collect();
+            let lines = o.lines(blocks.count(), blocks.format);
             let model = GpuModel {
                 resident: &resident,
                 ..base
@@ -394,15 +411,4 @@ fn tracer<'g>(
             Tracer::new(gpu, &model, settings, Some(setup))
         }
     }
-}
-
-/// Renders one frame of `camera` at `width` x `height`.
-pub fn render_frame(
-    tracer: &mut Tracer<'_>,
-    camera: &Camera,
-    width: u32,
-    height: u32,
-    background: [f32; 3],
-) -> Result<(Frame, FrameStats)> {
-    tracer.render(&camera.basis(width, height), background)
 }

@@ -1,6 +1,7 @@
 //! `dcrt bench --shading`: time against error for AO and path tracing on the rm and assembly
 //! generators, and the cost and error of the accuracy knobs. A table, `--json`, and a PNG plot.
 
+use super::{MODELS, Table, emit};
 use anyhow::Result;
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
@@ -8,7 +9,6 @@ use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
 use dcrt::render::Prepared;
 use dcrt::scene::Scene;
-use dcrt::scene::generate::Generator;
 use dcrt::shading::{Mode, Offset, Shading};
 use std::path::Path;
 
@@ -77,7 +77,7 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
     let ref_spp = [64u32, 256u32]; // AO (x36 rays), path
     let mut curve = Vec::new();
     let mut knobs = Vec::new();
-    for g in [Generator::Rm, Generator::Assembly] {
+    for g in MODELS {
         let scene = Scene::generated(g, a.triangles, w, h);
         let model = scene.load_model()?;
         let camera = scene.camera_or_default(&model);
@@ -201,37 +201,62 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
     if let Some(path) = a.plot {
         plot(&report.curve, path)?;
     }
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
-    }
+    emit(a.json, &report, print)
+}
+
+fn print(report: &Report) {
     println!("adapter   {}", report.adapter);
     println!(
         "{}x{}, {} triangles per scene; references: AO {} spp x 36 rays, path {} spp (other seed)",
-        w, h, a.triangles, ref_spp[0], ref_spp[1]
+        report.width,
+        report.height,
+        report.triangles,
+        report.reference_spp[0],
+        report.reference_spp[1]
     );
-    println!(
-        "{:<9} {:<5} {:>5} {:>10} {:>10} {:>10}",
-        "scene", "mode", "spp", "ms", "RMSE", "relMSE"
-    );
+    let t = Table(&[
+        ("scene", -9),
+        ("mode", -5),
+        ("spp", 5),
+        ("ms", 10),
+        ("RMSE", 10),
+        ("relMSE", 10),
+    ]);
+    t.header();
     for p in &report.curve {
-        println!(
-            "{:<9} {:<5} {:>5} {:>10.1} {:>10.5} {:>10.6}",
-            p.scene, p.mode, p.spp, p.ms, p.rmse, p.rel_mse
-        );
+        t.row(&[
+            p.scene.clone(),
+            p.mode.clone(),
+            p.spp.to_string(),
+            format!("{:.1}", p.ms),
+            format!("{:.5}", p.rmse),
+            format!("{:.6}", p.rel_mse),
+        ]);
     }
     println!();
-    println!(
-        "{:<9} {:<5} {:<50} {:>9} {:>11} {:>9} {:>9} {:>5}",
-        "scene", "mode", "knob (4 spp)", "ms", "steps", "rays", "RMSE", "same"
-    );
+    let t = Table(&[
+        ("scene", -9),
+        ("mode", -5),
+        ("knob (4 spp)", -50),
+        ("ms", 9),
+        ("steps", 11),
+        ("rays", 9),
+        ("RMSE", 9),
+        ("same", 5),
+    ]);
+    t.header();
     for k in &report.knobs {
-        println!(
-            "{:<9} {:<5} {:<50} {:>9.1} {:>11} {:>9} {:>9.5} {:>5}",
-            k.scene, k.mode, k.knob, k.ms, k.steps, k.traced_rays, k.rmse, k.same_image
-        );
+        t.row(&[
+            k.scene.clone(),
+            k.mode.clone(),
+            k.knob.clone(),
+            format!("{:.1}", k.ms),
+            k.steps.to_string(),
+            k.traced_rays.to_string(),
+            format!("{:.5}", k.rmse),
+            k.same_image.to_string(),
+        ]);
     }
-    Ok(())
 }
 
 /// RMSE against spp (left) and against time (right), log-log, one colour per scene and mode:

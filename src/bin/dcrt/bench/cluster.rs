@@ -1,0 +1,110 @@
+//! `dcrt bench --cluster`: the driver of the mpirun jobs of `dcrt::cluster::bench`.
+
+use super::{MODELS, emit};
+use crate::BenchArgs;
+use anyhow::{Context, Result, bail};
+use dcrt::blocks::Format;
+use dcrt::dc::CacheSize;
+use dcrt::render::{Prepared, mib};
+use dcrt::scene::Scene;
+
+/// `bench --cluster`: prepares the models once, then runs the jobs of `cluster::bench`.
+pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
+    use dcrt::cluster::bench::{Plan, table};
+    if a.frames < 2 || a.display_frames < 4 {
+        bail!("--frames must be at least 2 and --display-frames at least 4: frame 0 is not timed");
+    }
+    if a.ranks.iter().any(|&k| k < 2) || a.display_ranks < 2 {
+        bail!("--ranks and --display-ranks count MPI ranks: at least 2");
+    }
+    let dir = std::env::temp_dir().join(format!("dcrt-bench-cluster-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let scenes: Vec<(String, Scene)> = match &a.scene {
+        Some(p) => vec![(
+            p.file_stem()
+                .map_or("scene".into(), |s| s.to_string_lossy().into_owned()),
+            Scene::load(p)?,
+        )],
+        None => MODELS
+            .into_iter()
+            .map(|g| {
+                let scene = Scene::generated(g, a.triangles, a.width, a.height);
+                (g.name().to_string(), scene)
+            })
+            .collect(),
+    };
+    let mut models = Vec::new();
+    for (name, scene) in &scenes {
+        let p = Prepared::new(scene, a.gpu.bvh_preset, format)?;
+        let camera = scene.camera_or_default(&p.model);
+        let path = dir.join(format!("{name}.dcb"));
+        dcrt::blocks::file::write(&path, &p.blocks, &p.meta(scene, camera, a.width, a.height))?;
+        eprintln!(
+            "{name}: {} triangles, {:.1} MiB of blocks",
+            p.model.triangles.len(),
+            mib(p.blocks.bytes())
+        );
+        models.push((name.clone(), path));
+    }
+    let caches = a
+        .cluster_caches
+        .iter()
+        .map(|c| match c.as_str() {
+            "none" => Ok(None),
+            other => CacheSize::parse(other).map(|_| Some(other.to_string())),
+        })
+        .collect::<dcrt::Result<Vec<_>>>()?;
+    let plan = Plan {
+        exe: std::env::current_exe().context("the path of this dcrt")?,
+        dir: dir.clone(),
+        models: models.clone(),
+        ranks: a.ranks.clone(),
+        caches,
+        transports: a.transports.clone(),
+        frames: a.frames,
+        width: a.width,
+        height: a.height,
+        copy_threads: a.copy_threads.clone(),
+        display_ranks: a.display_ranks,
+        timeout_seconds: 600,
+    };
+    let rows = if a.display_only {
+        Vec::new()
+    } else {
+        plan.frame_times()?
+    };
+    let display_plan = Plan {
+        frames: a.display_frames,
+        width: 1920,
+        height: 1080,
+        ..plan
+    };
+    let display = match models.first() {
+        Some((_, m)) if !a.copy_threads.is_empty() => display_plan.display(m)?,
+        _ => Vec::new(),
+    };
+    let _ = std::fs::remove_dir_all(&dir);
+    let all = serde_json::json!({"frame_times": rows, "display": display});
+    emit(a.json, &all, |_| {
+        print!("{}", table(&rows));
+        println!(
+            "\ndisplay benchmark ({} ranks, 1920x1080, {} frames):",
+            a.display_ranks, a.display_frames
+        );
+        println!(
+            "{:>12} {:>8} {:>14} {:>14} {:>12} {:>8}",
+            "copy threads", "fps", "Mpixels/s", "MPI MB/s", "ceiling fps", "ratio"
+        );
+        for d in &display {
+            println!(
+                "{:>12} {:>8.1} {:>14.1} {:>14.1} {:>12.1} {:>8.3}",
+                d["copy_threads"],
+                d["fps"].as_f64().unwrap_or(f64::NAN),
+                d["pixels_per_s"].as_f64().unwrap_or(f64::NAN) / 1e6,
+                d["mpi_bytes_per_s"].as_f64().unwrap_or(f64::NAN) / 1e6,
+                d["ceiling_fps"].as_f64().unwrap_or(f64::NAN),
+                d["ratio"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
+    })
+}

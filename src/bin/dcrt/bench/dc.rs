@@ -1,0 +1,286 @@
+//! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
+//! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
+
+use super::{Table, emit, frame_stats};
+use crate::{BenchArgs, settings};
+use anyhow::{Result, bail};
+use dcrt::blocks::Format;
+use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::gpu::Gpu;
+use dcrt::render::frames::View;
+use dcrt::render::{DcOptions, Prepared, mib};
+use dcrt::scene::{Camera, Model, Scene};
+
+#[derive(serde::Serialize)]
+struct DcRow {
+    config: String,
+    cache: Option<String>,
+    cache_map: Option<CacheMap>,
+    cache_lines: u32,
+    /// Mean over the frames after the first (warm cache), and the first (cold).
+    frame_ms: f64,
+    first_frame_ms: f64,
+    fetched_bytes_per_frame: f64,
+    rounds_per_frame: f64,
+    fault_rounds_per_frame: f64,
+    misses_per_fault_round: f64,
+    hit_rate: f64,
+    nodes_per_block_entry: f64,
+    resident_mib: f64,
+    cache_mib: f64,
+    /// Of the warm frames' time: GPU trace rounds (timestamps), submission and readback waits,
+    /// CPU fetch, upload, shading.
+    gpu_share: f64,
+    sync_share: f64,
+    fetch_share: f64,
+    upload_share: f64,
+    shade_share: f64,
+}
+
+#[derive(serde::Serialize)]
+struct MemoryRow {
+    ranks: u32,
+    resident_mib_max: f64,
+    cache_mib: f64,
+    total_mib: f64,
+}
+
+#[derive(serde::Serialize)]
+struct DcReport {
+    adapter: String,
+    scene: String,
+    triangles: usize,
+    width: u32,
+    height: u32,
+    ranks: u32,
+    rank: u32,
+    frames: u32,
+    model_mib: f64,
+    rows: Vec<DcRow>,
+    memory: Vec<MemoryRow>,
+}
+
+pub fn run(
+    a: &BenchArgs,
+    gpu: &Gpu,
+    scene: &Scene,
+    model: Model,
+    camera: Camera,
+    format: Format,
+) -> Result<()> {
+    if a.frames < 2 {
+        bail!("--frames must be at least 2 for --dc (the first frame warms the cache)");
+    }
+    let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
+    let blocks = &prepared.blocks;
+    let mut configs: Vec<Option<DcOptions>> = vec![None];
+    for map in [CacheMap::Ize, CacheMap::Demarle] {
+        for c in &a.caches {
+            configs.push(Some(DcOptions {
+                ranks: a.virtual_ranks,
+                rank: a.rank,
+                cache: CacheSize::parse(c)?,
+                map,
+            }));
+        }
+    }
+    let mut rows = Vec::new();
+    for (cfg, cache_name) in configs.iter().zip(
+        std::iter::once(None).chain(
+            [0, 1]
+                .iter()
+                .flat_map(|_| a.caches.iter().map(|c| Some(c.clone()))),
+        ),
+    ) {
+        let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
+        let size = (a.width, a.height);
+        let all = frame_stats(
+            &mut tracer,
+            View::Orbit(camera),
+            a.frames,
+            size,
+            scene.background,
+        )?;
+        let first_ms = all[0].seconds * 1e3;
+        let warm = &all[1..];
+        let n = warm.len() as f64;
+        let sum = |f: &dyn Fn(&dcrt::gpu::tracer::FrameStats) -> f64| -> f64 {
+            warm.iter().map(f).sum::<f64>()
+        };
+        let secs = sum(&|s| s.seconds);
+        let (resident, cache, lines) = match cfg {
+            None => (blocks.bytes(), 0, 0),
+            Some(o) => {
+                let m = o.memory(blocks.count(), blocks.format)?;
+                (
+                    m.resident_bytes,
+                    m.cache_bytes,
+                    o.lines(blocks.count(), format),
+                )
+            }
+        };
+        let fault_rounds = sum(&|s| f64::from(s.fault_rounds));
+        rows.push(DcRow {
+            config: match cfg {
+                None => "replicated".into(),
+                Some(_) => "dc".into(),
+            },
+            cache: cache_name.clone(),
+            cache_map: cfg.map(|o| o.map),
+            cache_lines: lines,
+            frame_ms: secs / n * 1e3,
+            first_frame_ms: first_ms,
+            fetched_bytes_per_frame: sum(&|s| s.fetched_bytes as f64) / n,
+            rounds_per_frame: sum(&|s| f64::from(s.rounds)) / n,
+            fault_rounds_per_frame: fault_rounds / n,
+            misses_per_fault_round: if fault_rounds > 0.0 {
+                sum(&|s| s.misses as f64) / fault_rounds
+            } else {
+                0.0
+            },
+            hit_rate: {
+                let l = sum(&|s| s.lookups as f64);
+                if l > 0.0 {
+                    sum(&|s| s.hits as f64) / l
+                } else {
+                    1.0
+                }
+            },
+            nodes_per_block_entry: sum(&|s| s.node_visits as f64)
+                / sum(&|s| s.block_entries as f64).max(1.0),
+            resident_mib: mib(resident),
+            cache_mib: mib(cache),
+            gpu_share: sum(&|s| s.gpu_seconds) / secs,
+            sync_share: sum(&|s| {
+                s.trace_seconds - s.gpu_seconds - s.fetch_seconds - s.upload_seconds
+            }) / secs,
+            fetch_share: sum(&|s| s.fetch_seconds) / secs,
+            upload_share: sum(&|s| s.upload_seconds) / secs,
+            shade_share: sum(&|s| s.shade_seconds) / secs,
+        });
+    }
+    let cache_for_memory = CacheSize::parse("1/8")?;
+    let memory = [1u32, 2, 4, 8, 16, 32, 64]
+        .iter()
+        .map(|&n| {
+            let resident = (0..n)
+                .map(|r| {
+                    DcOptions {
+                        ranks: n,
+                        rank: r,
+                        cache: cache_for_memory,
+                        map: CacheMap::Ize,
+                    }
+                    .memory(blocks.count(), blocks.format)
+                    .map(|m| m.resident_bytes)
+                })
+                .collect::<dcrt::Result<Vec<u64>>>()
+                .map(|v| v.into_iter().max().unwrap_or(0));
+            resident.map(|res| {
+                let cache = if n == 1 {
+                    0
+                } else {
+                    u64::from(cache_for_memory.lines(blocks.count(), format.block_bytes))
+                        * u64::from(format.block_bytes)
+                };
+                MemoryRow {
+                    ranks: n,
+                    resident_mib_max: mib(res),
+                    cache_mib: mib(cache),
+                    total_mib: mib(res + cache),
+                }
+            })
+        })
+        .collect::<dcrt::Result<Vec<_>>>()?;
+    let report = DcReport {
+        adapter: gpu.describe(),
+        scene: scene.path.display().to_string(),
+        triangles: prepared.model.triangles.len(),
+        width: a.width,
+        height: a.height,
+        ranks: a.virtual_ranks,
+        rank: a.rank,
+        frames: a.frames,
+        model_mib: mib(blocks.bytes()),
+        rows,
+        memory,
+    };
+    emit(a.json, &report, print)
+}
+
+fn print(report: &DcReport) {
+    println!("adapter   {}", report.adapter);
+    println!(
+        "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
+         {} orbit frames (the first, cold, reported apart)",
+        report.scene,
+        report.triangles,
+        report.model_mib,
+        report.width,
+        report.height,
+        report.rank,
+        report.ranks,
+        report.frames
+    );
+    let t = Table(&[
+        ("config", -10),
+        ("cache", -5),
+        ("map", -8),
+        ("lines", 6),
+        ("frame ms", 9),
+        ("cold ms", 9),
+        ("MiB/frame", 10),
+        ("rounds", 7),
+        ("faultR", 7),
+        ("miss/rnd", 9),
+        ("hit", 6),
+        ("nod/blk", 7),
+        ("res MiB", 8),
+        ("$ MiB", 7),
+        ("gpu%", 6),
+        ("sync%", 6),
+        ("fetch%", 6),
+        ("upl%", 6),
+    ]);
+    t.header();
+    for r in &report.rows {
+        t.row(&[
+            r.config.clone(),
+            r.cache.clone().unwrap_or_else(|| "-".into()),
+            r.cache_map
+                .map(|m| format!("{m:?}").to_lowercase())
+                .unwrap_or_else(|| "-".into()),
+            r.cache_lines.to_string(),
+            format!("{:.1}", r.frame_ms),
+            format!("{:.1}", r.first_frame_ms),
+            format!("{:.2}", r.fetched_bytes_per_frame / 1048576.0),
+            format!("{:.1}", r.rounds_per_frame),
+            format!("{:.1}", r.fault_rounds_per_frame),
+            format!("{:.0}", r.misses_per_fault_round),
+            format!("{:.3}", r.hit_rate),
+            format!("{:.2}", r.nodes_per_block_entry),
+            format!("{:.1}", r.resident_mib),
+            format!("{:.1}", r.cache_mib),
+            format!("{:.0}", r.gpu_share * 100.0),
+            format!("{:.0}", r.sync_share * 100.0),
+            format!("{:.1}", r.fetch_share * 100.0),
+            format!("{:.1}", r.upload_share * 100.0),
+        ]);
+    }
+    println!("memory per rank against ranks (largest resident share + a 1/8 cache):");
+    let t = Table(&[
+        ("ranks", 6),
+        ("resident", 12),
+        ("cache", 10),
+        ("total MiB", 10),
+    ]);
+    t.header();
+    for m in &report.memory {
+        t.row(&[
+            m.ranks.to_string(),
+            format!("{:.1}", m.resident_mib_max),
+            format!("{:.1}", m.cache_mib),
+            format!("{:.1}", m.total_mib),
+        ]);
+    }
+}

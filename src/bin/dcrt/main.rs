@@ -1,0 +1,375 @@
+//! The `dcrt` command line: render, info, prepare, bench. The arguments and the dispatch; each
+//! command is a module.
+
+mod bench;
+mod checks;
+mod info;
+mod prepare;
+mod render;
+
+use anyhow::{Result, bail};
+use clap::{Args, Parser, Subcommand};
+use dcrt::blocks::Format;
+use dcrt::bvh::Preset;
+use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::gpu::shaders::Store;
+use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
+use dcrt::output::Aov;
+use dcrt::render::DcOptions;
+use dcrt::shading::{Mode, Overrides, Shading};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "dcrt",
+    version,
+    about = "GPU-compute ray tracer for massive triangle models"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene to PNG (and EXR).
+    Render(RenderArgs),
+    /// Show the GPU adapters, the one dcrt would use, its limits and features.
+    Info {
+        /// Use the first adapter whose name contains this text.
+        #[arg(long)]
+        adapter: Option<String>,
+    },
+    /// Build the BVH and blocks once and write them to a block file (.dcb).
+    Prepare(PrepareArgs),
+    /// Measure BVH build time and primary-ray throughput.
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct PrepareArgs {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Output block file.
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    bvh_preset: Preset,
+    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
+    block_size: u32,
+}
+
+#[derive(Args, Clone)]
+struct GpuArgs {
+    /// Use the first adapter whose name contains this text (default: the best GPU, else lavapipe).
+    #[arg(long)]
+    adapter: Option<String>,
+    /// Loop iterations a ray may run per trace dispatch (1..=60000).
+    #[arg(long, default_value_t = DEFAULT_STEP_BUDGET)]
+    step_budget: u32,
+    /// obvhs build preset.
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    bvh_preset: Preset,
+    /// Block size in bytes.
+    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
+    block_size: u32,
+    /// Where the GPU keeps blocks.
+    #[arg(long, value_enum, default_value_t = Store::Texture)]
+    store: Store,
+}
+
+/// Shading options; each overrides the scene's `[render]` value when given.
+#[derive(Args, Clone, Default)]
+struct ShadeArgs {
+    /// Shading mode.
+    #[arg(long, value_enum)]
+    mode: Option<Mode>,
+    /// Samples per pixel (accumulated; 1 traces pixel centres).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Sampler seed: the same seed gives the same bits.
+    #[arg(long)]
+    seed: Option<u32>,
+    /// Ambient occlusion rays per hit (default 36).
+    #[arg(long)]
+    ao_rays: Option<u32>,
+    /// Ambient occlusion distance (default: unbounded).
+    #[arg(long)]
+    ao_distance: Option<f32>,
+    /// Path tracing: most bounces.
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Offset secondary-ray origins by this fixed distance instead of integer ulps (for
+    /// comparison).
+    #[arg(long)]
+    epsilon: Option<f32>,
+    /// Shadow and occlusion rays find the closest hit instead of stopping at any (for
+    /// comparison).
+    #[arg(long)]
+    closest_hit_shadows: bool,
+    /// Trace primary rays that miss the model's box too (for comparison).
+    #[arg(long)]
+    no_cull: bool,
+}
+
+impl ShadeArgs {
+    fn overrides(&self) -> Overrides {
+        Overrides {
+            mode: self.mode,
+            spp: self.spp,
+            seed: self.seed,
+            ao_rays: self.ao_rays,
+            ao_distance: self.ao_distance,
+            max_depth: self.max_depth,
+            epsilon: self.epsilon,
+            closest_hit_shadows: self.closest_hit_shadows,
+            no_cull: self.no_cull,
+        }
+    }
+
+    fn apply(&self, base: Shading) -> Result<Shading> {
+        Ok(self.overrides().apply(base)?)
+    }
+}
+
+#[derive(Args)]
+struct RenderArgs {
+    /// Scene file (TOML) or prepared block file (.dcb).
+    scene: PathBuf,
+    /// Output PNG.
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// Also write linear OpenEXR with R, G, B and the requested AOVs.
+    #[arg(long)]
+    exr: Option<PathBuf>,
+    /// EXR AOVs, comma separated.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    aov: Vec<Aov>,
+    #[arg(long)]
+    width: Option<u32>,
+    #[arg(long)]
+    height: Option<u32>,
+    /// Frames to render, orbiting the camera about the focal point (one turn in all); outputs
+    /// are numbered (out_0000.png ...). The cache persists between frames.
+    #[arg(long, default_value_t = 1)]
+    frames: u32,
+    /// Write each frame's fault/fetch trace (JSON Lines) into this directory.
+    #[arg(long)]
+    trace: Option<PathBuf>,
+    /// PNG exposure in stops (the EXR stays linear).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    exposure: f32,
+    #[command(flatten)]
+    shade: ShadeArgs,
+    #[command(flatten)]
+    gpu: GpuArgs,
+    #[command(flatten)]
+    dc: DcArgs,
+    #[command(flatten)]
+    cluster: ClusterArgs,
+}
+
+/// Options of cluster mode (under mpirun or srun with 2 ranks or more).
+#[derive(Args, Clone)]
+struct ClusterArgs {
+    /// Threads the display copies received pixels into the frame with.
+    #[arg(long, default_value_t = 2)]
+    copy_threads: u32,
+    /// Side in pixels of the balancer's large tiles.
+    #[arg(long, default_value_t = 128)]
+    tile: u32,
+    /// Side of the smallest tiles the balancer splits them into toward the end of a frame.
+    #[arg(long, default_value_t = 16)]
+    min_tile: u32,
+    /// Target size in bytes of a pixel message to the display.
+    #[arg(long, default_value_t = 32 * 1024)]
+    message_bytes: usize,
+    /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
+    #[arg(long, default_value_t = 300)]
+    timeout: u64,
+    /// Display benchmark (chapter 5.5): the camera looks away from the model, tiles are traced
+    /// once and then resent, and the MPI bandwidth to the display is measured after the frames.
+    #[arg(long)]
+    display_bench: bool,
+    /// Write the run's figures (frame times, per-rank statistics) as JSON to this file.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+}
+
+#[derive(Args, Clone)]
+struct DcArgs {
+    /// Split the model over N in-process ranks and render through a distributed cache.
+    #[arg(long)]
+    virtual_ranks: Option<u32>,
+    /// The rank this process renders as (with --virtual-ranks).
+    #[arg(long, default_value_t = 0)]
+    rank: u32,
+    /// Cache size: a fraction of the model (1/8), lines (64lines) or bytes (256MiB). Default 1/8
+    /// with --virtual-ranks; under mpirun, giving it turns the distributed cache on.
+    #[arg(long)]
+    cache: Option<String>,
+    #[arg(long, value_enum, default_value_t = CacheMap::Ize)]
+    cache_map: CacheMap,
+    /// Everything resident, no cache (the default without --virtual-ranks).
+    #[arg(long, conflicts_with = "virtual_ranks")]
+    replicate: bool,
+}
+
+impl DcArgs {
+    fn options(&self) -> Result<Option<DcOptions>> {
+        let Some(n) = self.virtual_ranks else {
+            return Ok(None);
+        };
+        dcrt::dc::Ranks::new(n, self.rank)?;
+        Ok(Some(DcOptions {
+            ranks: n,
+            rank: self.rank,
+            cache: CacheSize::parse(self.cache.as_deref().unwrap_or("1/8"))?,
+            map: self.cache_map,
+        }))
+    }
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene file; without it, a generated scene (--generator, --triangles).
+    scene: Option<PathBuf>,
+    #[arg(long, default_value = "rm")]
+    generator: String,
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    #[arg(long, default_value_t = 1024)]
+    height: u32,
+    /// Timed frames after one warm-up frame; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Also build and trace with every obvhs preset, side by side.
+    #[arg(long)]
+    bvh_presets: bool,
+    /// Trace with both block stores (texture, buffer), side by side.
+    #[arg(long)]
+    stores: bool,
+    /// One JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Distributed-cache sweep: replicated against caches of 1/32..1/1 with both mappings, over
+    /// an orbit of --frames frames as rank --rank of --virtual-ranks.
+    #[arg(long)]
+    dc: bool,
+    #[arg(long, default_value_t = 8)]
+    virtual_ranks: u32,
+    #[arg(long, default_value_t = 0)]
+    rank: u32,
+    #[arg(long, default_value_t = 4)]
+    frames: u32,
+    /// Time against error of AO and path tracing on the rm and assembly generators (small
+    /// images: --width/--height default to 32 here), and the cost and error of accuracy knobs.
+    #[arg(long)]
+    shading: bool,
+    /// --shading: the largest spp of the curve.
+    #[arg(long, default_value_t = 32)]
+    max_spp: u32,
+    /// --shading: also draw the curves into this PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Cache sizes for --dc.
+    #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
+    caches: Vec<String>,
+    /// Cluster sweep: mpirun jobs of this binary with --ranks ranks, replicated and with the
+    /// distributed cache (--cluster-caches), beside one process; block fetch costs on every
+    /// --transports; then the display benchmark for each --copy-threads. Runs the rm and the
+    /// occluded assembly model unless a scene is given.
+    #[arg(long)]
+    cluster: bool,
+    #[arg(long, value_delimiter = ',', default_value = "2,3,4,5,6")]
+    ranks: Vec<u32>,
+    /// `none` replicates.
+    #[arg(long, value_delimiter = ',', default_value = "none,1/8")]
+    cluster_caches: Vec<String>,
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "shm,tcp-pt2pt,ucx"
+    )]
+    transports: Vec<dcrt::cluster::bench::Transport>,
+    /// Copy-thread counts of the display benchmark (an HD frame); empty skips it.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3,4")]
+    copy_threads: Vec<u32>,
+    #[arg(long, default_value_t = 4)]
+    display_ranks: u32,
+    #[arg(long, default_value_t = 60)]
+    display_frames: u32,
+    /// Only the display benchmark.
+    #[arg(long)]
+    display_only: bool,
+    #[command(flatten)]
+    gpu: GpuArgs,
+}
+
+fn main() -> ExitCode {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(a) => render::render(a),
+        Command::Info { adapter } => info::info(adapter.as_deref()),
+        Command::Prepare(a) => prepare::prepare(a),
+        Command::Bench(a) => bench::bench(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn settings(g: &GpuArgs) -> Settings {
+    Settings {
+        step_budget: g.step_budget,
+        store: g.store,
+        ..Settings::default()
+    }
+}
+
+/// `render` under an MPI launcher with `k` > 1 ranks: this process's role of the cluster.
+fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
+    if a.dc.virtual_ranks.is_some() {
+        bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
+    }
+    let c = &a.cluster;
+    let cache = match &a.dc.cache {
+        Some(s) => Some((CacheSize::parse(s)?, a.dc.cache_map)),
+        None => None,
+    };
+    let opts = dcrt::cluster::Options {
+        input: a.scene.clone(),
+        output: a.output.clone(),
+        exr: a.exr.clone(),
+        aovs: a.aov.clone(),
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+        trace: a.trace.clone(),
+        adapter: a.gpu.adapter.clone(),
+        settings: settings(&a.gpu),
+        shade: a.shade.overrides(),
+        exposure: a.exposure,
+        preset: a.gpu.bvh_preset,
+        format,
+        cache,
+        copy_threads: c.copy_threads,
+        tile: c.tile,
+        min_tile: c.min_tile,
+        message_bytes: c.message_bytes,
+        timeout: std::time::Duration::from_secs(c.timeout),
+        display_bench: c.display_bench,
+        stats: c.stats.clone(),
+    };
+    dcrt::cluster::run(&opts)?;
+    Ok(())
+}

@@ -1,0 +1,150 @@
+//! `dcrt render`: the options checked before any work, then a cluster role under an MPI launcher,
+//! or the frames of one process.
+
+use crate::checks::{check_budget, check_writable};
+use crate::{RenderArgs, render_cluster, settings};
+use anyhow::{Context, Result, bail};
+use dcrt::blocks::Format;
+use dcrt::gpu::Gpu;
+use dcrt::gpu::tracer::Settings;
+use dcrt::output;
+use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
+use dcrt::render::{Loaded, mib};
+use dcrt::scene::check_image_size;
+use dcrt::shading::Shading;
+use std::path::Path;
+
+pub fn render(a: RenderArgs) -> Result<()> {
+    check_budget(a.gpu.step_budget)?;
+    if !a.aov.is_empty() && a.exr.is_none() {
+        bail!("--aov needs --exr FILE: the AOVs are EXR channels");
+    }
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if !a.exposure.is_finite() {
+        bail!("--exposure must be finite, got {}", a.exposure);
+    }
+    // Options are checked before the scene is loaded.
+    a.shade.apply(Shading::default())?;
+    for out in std::iter::once(&a.output).chain(a.exr.as_ref()) {
+        check_writable(out)?;
+    }
+    if let Some(dir) = &a.trace {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
+    }
+    let format = Format::new(a.gpu.block_size)?;
+    // Checked in one process too, so that a typo is not found only on the cluster.
+    let c = &a.cluster;
+    if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
+        bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
+    }
+    if c.timeout == 0 {
+        bail!("--timeout must be at least 1 second");
+    }
+    if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
+        return render_cluster(&a, format, k);
+    }
+    if a.cluster.display_bench {
+        bail!(
+            "--display-bench measures the display of a cluster: run it under mpirun with 2 or more ranks"
+        );
+    }
+    one_process(&a, format)
+}
+
+/// The frames of one process, replicated or as one virtual rank of a distributed cache: PNG (and
+/// EXR) per frame, a line on stderr, traces and `--stats` when asked.
+fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
+    let dc = a.dc.options()?;
+    let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let mut report = Vec::new();
+    let width = a.width.unwrap_or(loaded.width);
+    let height = a.height.unwrap_or(loaded.height);
+    check_image_size(width, height)?;
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    eprintln!("adapter: {}", gpu.describe());
+    let shading = a.shade.apply(loaded.shading)?;
+    let s = Settings {
+        shading,
+        ..settings(&a.gpu)
+    };
+    let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
+    match &dc {
+        Some(o) => {
+            let m = o.memory(loaded.block_count(), loaded.format())?;
+            eprintln!(
+                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}) of a {:.1} MiB \
+                 model",
+                o.rank,
+                o.ranks,
+                mib(m.resident_bytes),
+                mib(m.cache_bytes),
+                o.lines(loaded.block_count(), loaded.format()),
+                o.map,
+                mib(loaded.model_bytes())
+            );
+        }
+        None => eprintln!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
+    }
+    let plan = FramePlan {
+        frames: a.frames,
+        view: View::Orbit(loaded.camera),
+        role: Role::one_process(&tracer),
+        trace_dir: a.trace.as_deref(),
+    };
+    let bg = loaded.background;
+    run_images(
+        &mut tracer,
+        &plan,
+        width,
+        height,
+        bg,
+        &mut |i, frame, stats| {
+            let numbered = |p: &Path| output::numbered(p, i, a.frames);
+            report.push(
+                serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": stats}),
+            );
+            let png = numbered(&a.output);
+            output::write_png_exposed(&png, &frame, a.exposure)?;
+            if let Some(exr) = &a.exr {
+                output::write_exr(&numbered(exr), &frame, &a.aov)?;
+            }
+            eprintln!(
+                "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+                shading.mode.name(),
+                shading.spp,
+                loaded.triangles,
+                loaded
+                    .build_seconds
+                    .filter(|_| i == 0)
+                    .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
+                    .unwrap_or_default(),
+                width,
+                height,
+                stats.seconds * 1e3,
+                stats.max_live_rounds,
+                if dc.is_some() {
+                    format!(
+                        ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
+                        stats.fault_rounds,
+                        hit_rate(stats),
+                        stats.fetched_blocks
+                    )
+                } else {
+                    String::new()
+                },
+                png.display()
+            );
+            Ok(())
+        },
+    )?;
+    if let Some(path) = &a.cluster.stats {
+        let all =
+            serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});
+        std::fs::write(path, all.to_string())
+            .with_context(|| format!("{}: cannot write the statistics", path.display()))?;
+    }
+    Ok(())
+}

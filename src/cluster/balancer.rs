@@ -1,0 +1,110 @@
+//! The balancer role: answers the render ranks' `ASK`s from each frame's `Schedule`, and keeps
+//! the grants of every frame for the traces.
+
+use super::protocol::{Ask, Tag, Work, malformed};
+use super::schedule::Schedule;
+use super::startup::Image;
+use super::{Options, Roles};
+use crate::error::Result;
+use crate::gpu::tracer::ms;
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// The balancer's state over all frames.
+pub struct Balancer {
+    roles: Roles,
+    frames: u32,
+    width: u32,
+    height: u32,
+    tile: u32,
+    min_tile: u32,
+    schedules: BTreeMap<u32, Schedule>,
+    /// The last frame each render rank asked about, and the frames it was told are over.
+    asked: Vec<Option<u32>>,
+    ended: Vec<u32>,
+    /// Grants per frame, for the traces.
+    events: BTreeMap<u32, Vec<serde_json::Value>>,
+    start: Instant,
+}
+
+impl Balancer {
+    pub fn new(roles: Roles, opts: &Options, image: Image) -> Balancer {
+        let n = roles.render_ranks() as usize;
+        Balancer {
+            roles,
+            frames: opts.frames,
+            width: image.width,
+            height: image.height,
+            tile: opts.tile,
+            min_tile: opts.min_tile,
+            schedules: BTreeMap::new(),
+            asked: vec![None; n],
+            ended: vec![0; n],
+            events: BTreeMap::new(),
+            start: Instant::now(),
+        }
+    }
+
+    /// Whether every render rank has been told that the last frame is over.
+    pub fn finished(&self) -> bool {
+        self.ended.iter().all(|&e| e >= self.frames)
+    }
+
+    /// The answer to an `ASK` from world rank `from`.
+    pub fn ask(&mut self, from: u32, ask: Ask) -> Result<Work> {
+        let Some(i) = self.roles.render_index(from) else {
+            return Err(malformed(Tag::Ask, from, "not from a render rank"));
+        };
+        let frame = ask.frame;
+        if frame >= self.frames || frame < self.ended[i as usize] {
+            return Err(malformed(
+                Tag::Ask,
+                from,
+                format!("frame {frame} is over or beyond the last"),
+            ));
+        }
+        let (w, h, r) = (self.width, self.height, self.roles.render_ranks());
+        let (tile, min) = (self.tile, self.min_tile);
+        let sched = self
+            .schedules
+            .entry(frame)
+            .or_insert_with(|| Schedule::new(w, h, r, tile, min));
+        let first = self.asked[i as usize] != Some(frame);
+        self.asked[i as usize] = Some(frame);
+        let (grant, kind) = if first {
+            (sched.first(i), "static")
+        } else {
+            (sched.next_tile().into_iter().collect(), "dynamic")
+        };
+        let events = self.events.entry(frame).or_default();
+        let t = ms(self.start.elapsed());
+        for g in &grant {
+            events.push(
+                json!({"type": "grant", "rank": from, "kind": kind, "t_ms": t,
+                               "x": g.x, "y": g.y, "w": g.w, "h": g.h}),
+            );
+        }
+        if grant.is_empty() {
+            events.push(json!({"type": "grant", "rank": from, "kind": "end", "t_ms": t}));
+            self.ended[i as usize] = frame + 1;
+            if self.ended.iter().all(|&e| e > frame) {
+                self.schedules.remove(&frame);
+            }
+        }
+        Ok(Work {
+            frame,
+            tiles: grant,
+        })
+    }
+
+    /// The grants of frames every rank has finished asking about.
+    pub fn take_finished_events(&mut self) -> Vec<(u32, Vec<serde_json::Value>)> {
+        let done = self.ended.iter().copied().min().unwrap_or(0);
+        let frames: Vec<u32> = self.events.range(..done).map(|(&f, _)| f).collect();
+        frames
+            .into_iter()
+            .filter_map(|f| self.events.remove(&f).map(|e| (f, e)))
+            .collect()
+    }
+}
