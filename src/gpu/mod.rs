@@ -204,6 +204,22 @@ impl Gpu {
         })
     }
 
+    /// A buffer holding `contents`.
+    pub fn buffer_init(
+        &self,
+        label: &str,
+        contents: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        use wgpu::util::DeviceExt;
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+    }
+
     /// The largest storage buffer the adapter can bind.
     pub fn storage_limit(&self) -> u64 {
         self.limits

@@ -6,7 +6,6 @@ use super::kernels::Dispatch;
 use super::layout::{MirrorCase, MirrorResult, Params, RayState, ShadeParams};
 use super::tracer::Tracer;
 use crate::error::Result;
-use wgpu::util::DeviceExt;
 
 /// Words the probe writes: every `Params` member, `params.pad0` nodes of 8 words, `params.pad1`
 /// triangles of 10, two ray states, `params.mesh_count` meshes and the shading parameters.
@@ -34,14 +33,7 @@ impl Tracer<'_> {
     ) -> Result<Vec<u32>> {
         let gpu = self.gpu;
         gpu.write(&self.params_buf, &params);
-        let init = |label, contents: &[u8], usage| {
-            gpu.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage,
-                })
-        };
+        let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
         let input = init(
             "probe rays",
             bytemuck::cast_slice(rays),
@@ -84,14 +76,7 @@ pub fn run_mirror(
 ) -> Result<Vec<MirrorResult>> {
     use wgpu::BufferUsages as U;
     let kernel = super::kernels::Kernel::new(gpu, "mirror", super::shaders::Store::Texture, &[]);
-    let init = |label, contents: &[u8], usage| {
-        gpu.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
-    };
+    let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
     let params_buf = init("params", bytemuck::bytes_of(params), U::UNIFORM);
     let input = init("mirror in", bytemuck::cast_slice(cases), U::STORAGE);
     let bytes = (cases.len() * size_of::<MirrorResult>()) as u64;

@@ -24,7 +24,6 @@ use crate::scene::CameraBasis;
 use crate::shading::Shading;
 use std::mem::size_of;
 use std::time::Instant;
-use wgpu::util::DeviceExt;
 
 pub use super::frame::{Frame, FrameStats, Rect, ms};
 pub use super::layout::FAR;
@@ -196,14 +195,7 @@ impl<'g> Tracer<'g> {
                 pad: [0; 3],
             })
             .collect();
-        let init = |label, contents: &[u8], usage| {
-            gpu.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage,
-                })
-        };
+        let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
         use wgpu::BufferUsages as U;
         let meshes_buf = init("meshes", bytemuck::cast_slice(&meshes), U::STORAGE);
         let stack_size = model.depth.clamp(1, MAX_STACK);

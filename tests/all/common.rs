@@ -93,3 +93,39 @@ pub fn dcrt(args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::process::Output {
 pub fn exists(p: &Path) -> bool {
     p.exists()
 }
+
+/// SplitMix64: a small seeded generator, so every run traces the same rays.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn f(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.f()
+    }
+    /// Uniform on the unit sphere.
+    pub fn dir(&mut self) -> [f64; 3] {
+        let z = self.range(-1.0, 1.0);
+        let phi = self.range(0.0, std::f64::consts::TAU);
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        [r * phi.cos(), r * phi.sin(), z]
+    }
+    /// Uniform in the ball of radius `r`.
+    pub fn in_ball(&mut self, r: f64) -> [f64; 3] {
+        loop {
+            let p = [0; 3].map(|_| self.range(-r, r));
+            if p.iter().map(|c| c * c).sum::<f64>() < r * r {
+                return p;
+            }
+        }
+    }
+}

@@ -8,17 +8,14 @@ use dcrt::mirror::offset::offset_ray_with;
 use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
 use dcrt::mirror::tiles::tile_pixel;
 
-/// A deterministic generator for the cases (splitmix64).
-struct Mix(u64);
+/// Test inputs: coordinates, normals and samples.
+trait Cases {
+    fn unit(&mut self) -> f32;
+    fn coord(&mut self) -> f32;
+    fn normal(&mut self) -> [f32; 3];
+}
 
-impl Mix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
+impl Cases for Rng {
     fn unit(&mut self) -> f32 {
         (self.next() >> 40) as f32 / (1u64 << 24) as f32
     }
@@ -45,7 +42,7 @@ impl Mix {
 }
 
 fn cases(n: usize) -> Vec<MirrorCase> {
-    let mut m = Mix(42);
+    let mut m = Rng(42);
     (0..n)
         .map(|_| {
             let n3 = m.normal();
