@@ -115,7 +115,15 @@ fn non_finite_coordinates() {
 fn scenes_without_triangles() {
     let d = TempDir::new("empty");
     let s = scene_with_mesh(&d, "points.obj", b"v 0 0 0\nv 1 0 0\n");
-    fails(&d, &s, &[], &["scene.toml", "no triangles"]);
+    fails(&d, &s, &[], &["points.obj", "the mesh has no triangles"]);
+    // `faces` is not the `face` element: a mesh without faces, named.
+    let ply = PLY_HEADER.replace("element face 1", "element faces 1");
+    let s = scene_with_mesh(
+        &d,
+        "faces.ply",
+        format!("{ply}0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").as_bytes(),
+    );
+    fails(&d, &s, &[], &["faces.ply"]);
     let s = d.write("nomesh.toml", CAMERA);
     fails(&d, &s, &[], &["nomesh.toml", "no [[mesh]]"]);
 }
