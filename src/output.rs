@@ -4,7 +4,164 @@
 
 use crate::error::{Error as DcrtError, Result};
 use crate::gpu::tracer::Frame;
-use std::path::Path;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// Writes `path` through a temporary file beside it: `fill` writes the contents, then the file is
+/// flushed, fsynced and renamed into place. On any error the temporary file is removed and what
+/// was at `path` before stays. A `path` that exists but is not a regular file (a device, a FIFO,
+/// a directory) is refused: renaming over it would replace the node itself.
+pub fn write_atomic(
+    path: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    check_target(path)?;
+    let tmp = partial_path(path);
+    let io = |e| DcrtError::io(path, e);
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .map_err(|e| DcrtError::io(&tmp, e))?;
+    let done = (|| {
+        let mut w = BufWriter::new(file);
+        fill(&mut w)?;
+        let file = w.into_inner().map_err(|e| io(e.into_error()))?;
+        file.sync_all().map_err(io)?;
+        drop(file);
+        std::fs::rename(&tmp, path).map_err(io)
+    })();
+    if done.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    done
+}
+
+/// Writes `bytes` to `path` as `write_atomic` does.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomic(path, |w| {
+        w.write_all(bytes).map_err(|e| DcrtError::io(path, e))
+    })
+}
+
+/// The temporary name `write_atomic` uses: hidden, in the target's directory (so the rename
+/// stays on one filesystem), unique to this process.
+fn partial_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.partial", std::process::id()))
+}
+
+/// Refuses an output path that exists but is not a regular file.
+fn check_target(path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => Err(DcrtError::Invalid(format!(
+            "{}: the output exists and is not a regular file ({}); dcrt replaces only regular files",
+            path.display(),
+            kind_of(&m)
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// What a file system entry is, for messages.
+pub fn kind_of(m: &std::fs::Metadata) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    let t = m.file_type();
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_file() {
+        "a regular file"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// Checks a run's outputs before any work. Each is `(what, path, frames)`: a kind for messages,
+/// the path as given, and the frames it is written for (numbered as `numbered` does). Each one's
+/// directory must exist and take a new file, none may exist as something other than a regular
+/// file, no two may be the same path, and none may be one of the run's `inputs`. So a run never
+/// fails after rendering because of a path, and never replaces what it reads.
+pub fn check_outputs(outputs: &[(&str, &Path, u32)], inputs: &[PathBuf]) -> Result<()> {
+    for (k, &(what, path, frames)) in outputs.iter().enumerate() {
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if !dir.is_dir() {
+            return Err(DcrtError::Invalid(format!(
+                "{}: the {what} directory {} does not exist",
+                path.display(),
+                dir.display()
+            )));
+        }
+        for &(other, earlier, _) in &outputs[..k] {
+            if same_file(path, earlier) {
+                return Err(DcrtError::Invalid(format!(
+                    "{}: given as both the {other} and the {what} output; they must differ",
+                    path.display()
+                )));
+            }
+        }
+        for i in 0..frames {
+            let p = numbered(path, i, frames);
+            check_target(&p)?;
+            if let Some(input) = inputs.iter().find(|input| same_file(&p, input)) {
+                return Err(DcrtError::Invalid(format!(
+                    "{}: the {what} output would replace the input {}",
+                    p.display(),
+                    input.display()
+                )));
+            }
+        }
+        // A probe file proves the directory takes new files (permissions, a read-only mount).
+        let probe = partial_path(path);
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&probe)
+            .map_err(|e| {
+                DcrtError::Invalid(format!(
+                    "{}: cannot create the {what} output in {}: {e}",
+                    path.display(),
+                    dir.display()
+                ))
+            })?;
+        let _ = std::fs::remove_file(&probe);
+    }
+    Ok(())
+}
+
+/// Whether two paths name the same file: the same inode when both exist, else the same path
+/// once the directory part is resolved.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+        return x.dev() == y.dev() && x.ino() == y.ino();
+    }
+    let resolve = |p: &Path| -> Option<PathBuf> {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        Some(dir.canonicalize().ok()?.join(p.file_name()?))
+    };
+    match (resolve(a), resolve(b)) {
+        (Some(x), Some(y)) => x == y,
+        _ => a == b,
+    }
+}
 
 /// Extra EXR channels beside `R`, `G`, `B`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
@@ -73,12 +230,12 @@ pub fn write_png_exposed(path: &Path, frame: &Frame, exposure: f32) -> Result<()
 }
 
 /// Writes an 8-bit sRGB image.
+/// Writes an 8-bit sRGB image, encoded in memory and then written with `write_atomic`.
 pub fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
-    img.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| match e {
-            image::ImageError::IoError(io) => DcrtError::io(path, io),
-            other => DcrtError::format(path, None, other.to_string()),
-        })
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| DcrtError::format(path, None, e.to_string()))?;
+    write_bytes(path, &png)
 }
 
 pub fn write_exr(path: &Path, frame: &Frame, aovs: &[Aov]) -> Result<()> {
@@ -117,13 +274,14 @@ pub fn write_exr(path: &Path, frame: &Frame, aovs: &[Aov]) -> Result<()> {
         },
         AnyChannels::sort(SmallVec::from_vec(channels)),
     );
+    // Encoded in memory: the crate's own file writer removes its target on failure, whatever
+    // that target is.
+    let mut bytes = std::io::Cursor::new(Vec::new());
     Image::from_layer(layer)
         .write()
-        .to_file(path)
-        .map_err(|e| match e {
-            exr::error::Error::Io(io) => DcrtError::io(path, io),
-            other => DcrtError::format(path, None, other.to_string()),
-        })
+        .to_buffered(&mut bytes)
+        .map_err(|e| DcrtError::format(path, None, e.to_string()))?;
+    write_bytes(path, bytes.get_ref())
 }
 
 /// Reads every channel of an EXR written by `write_exr` (tests and tools): name → samples, with

@@ -6,29 +6,35 @@
 //! | offset | bytes | field |
 //! |--------|-------|-------|
 //! | 0 | 8 | magic `DCRTBLK\0` |
-//! | 8 | 4 | version (1) |
+//! | 8 | 4 | version (2) |
 //! | 12 | 4 | block size in bytes |
 //! | 16 | 4 | node blocks |
 //! | 20 | 4 | triangle blocks |
 //! | 24 | 4 | root block (0: the root treelet's block) |
 //! | 28 | 4 | metadata length M |
 //! | 32 | 8 | offset of the first block (a multiple of 4096) |
-//! | 40 | M | metadata: JSON (`Meta`: camera, image, meshes, bounds, BVH depth) |
-//! | 40+M | 4 per block | CRC-32 of each block |
+//! | 40 | 4 | CRC-32 of bytes 0..40 and the metadata |
+//! | 44 | M | metadata: JSON (`Meta`: camera, image, meshes, bounds, BVH depth) |
+//! | 44+M | 4 per block | CRC-32 of each block |
 //! | data | block size per block | the blocks in id order |
+//!
+//! Version 1 had no header checksum: a flipped bit in the metadata rendered another view. It is
+//! refused with a request to prepare the file again. On load the metadata is checked against the
+//! header (counts, bounds, mesh table) and every block read is checked for structure (child and
+//! leaf ranges, see `check`), so an edited block whose CRC was recomputed is refused too.
 
 use super::{Blocks, Format};
 use crate::error::{Error, Result};
 use crate::scene::Camera;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{Read, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: &[u8; 8] = b"DCRTBLK\0";
-pub const VERSION: u32 = 1;
-const FIXED: usize = 40;
+pub const VERSION: u32 = 2;
+const FIXED: usize = 44;
 const ALIGN: u64 = 4096;
 
 /// What a renderer needs besides the blocks: the view and image it was prepared with, the
@@ -50,13 +56,13 @@ pub struct Meta {
     pub source: String,
 }
 
+/// Writes the block file through `output::write_atomic`: a failed write leaves no half file.
 pub fn write(path: &Path, blocks: &Blocks, meta: &Meta) -> Result<()> {
     let io = |e| Error::io(path, e);
     let json = serde_json::to_vec(meta).map_err(|e| Error::Invalid(e.to_string()))?;
     let n = blocks.count() as u64;
     let table_end = FIXED as u64 + json.len() as u64 + 4 * n;
     let data = table_end.div_ceil(ALIGN) * ALIGN;
-    let mut w = BufWriter::new(File::create(path).map_err(io)?);
     let mut head = Vec::with_capacity(FIXED);
     head.extend_from_slice(MAGIC);
     for v in [
@@ -70,17 +76,26 @@ pub fn write(path: &Path, blocks: &Blocks, meta: &Meta) -> Result<()> {
         head.extend_from_slice(&v.to_le_bytes());
     }
     head.extend_from_slice(&data.to_le_bytes());
-    w.write_all(&head).map_err(io)?;
-    w.write_all(&json).map_err(io)?;
-    for k in 0..blocks.count() {
-        let crc = crc32fast::hash(bytemuck::cast_slice(blocks.block(k)));
-        w.write_all(&crc.to_le_bytes()).map_err(io)?;
-    }
-    w.write_all(&vec![0u8; (data - table_end) as usize])
-        .map_err(io)?;
-    w.write_all(bytemuck::cast_slice(&blocks.words))
-        .map_err(io)?;
-    w.flush().map_err(io)
+    head.extend_from_slice(&header_crc(&head, &json).to_le_bytes());
+    crate::output::write_atomic(path, |w| {
+        w.write_all(&head).map_err(io)?;
+        w.write_all(&json).map_err(io)?;
+        for k in 0..blocks.count() {
+            let crc = crc32fast::hash(bytemuck::cast_slice(blocks.block(k)));
+            w.write_all(&crc.to_le_bytes()).map_err(io)?;
+        }
+        w.write_all(&vec![0u8; (data - table_end) as usize])
+            .map_err(io)?;
+        w.write_all(bytemuck::cast_slice(&blocks.words)).map_err(io)
+    })
+}
+
+/// CRC-32 of the fixed header before the checksum field, then the metadata.
+fn header_crc(head: &[u8], json: &[u8]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&head[..FIXED - 4]);
+    h.update(json);
+    h.finalize()
 }
 
 /// An open block file whose header, metadata and checksum table have been checked.
@@ -98,16 +113,33 @@ pub struct DcbFile {
 impl DcbFile {
     pub fn open(path: &Path) -> Result<DcbFile> {
         let bad = |m: String| Error::format(path, None, m);
+        crate::scene::check_regular(path, "block file")?;
         let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
         let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+        let mut first = Vec::with_capacity(FIXED);
+        (&mut file)
+            .take(FIXED as u64)
+            .read_to_end(&mut first)
+            .map_err(|e| Error::io(path, e))?;
+        let got = first.len();
         let mut head = [0u8; FIXED];
-        file.read_exact(&mut head).map_err(|_| {
-            bad(format!(
+        head[..got].copy_from_slice(&first);
+        if head[..got.min(8)] != MAGIC[..got.min(8)] || got == 0 {
+            let text = head[..got]
+                .iter()
+                .all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace());
+            return Err(bad(if text && got > 0 {
+                "not a dcrt block file (bad magic): it is text (a scene?); a block file is \
+                 written by `dcrt prepare`"
+                    .into()
+            } else {
+                "not a dcrt block file (bad magic)".into()
+            }));
+        }
+        if got < FIXED {
+            return Err(bad(format!(
                 "truncated: {len} bytes, shorter than the {FIXED}-byte header"
-            ))
-        })?;
-        if &head[..8] != MAGIC {
-            return Err(bad("not a dcrt block file (bad magic)".into()));
+            )));
         }
         let u = |i: usize| u32::from_le_bytes(head[i..i + 4].try_into().unwrap_or_default());
         let version = u(8);
@@ -119,6 +151,12 @@ impl DcbFile {
         }
         if version == 0 {
             return Err(bad("format version 0 is not valid".into()));
+        }
+        if version < VERSION {
+            return Err(bad(format!(
+                "format version {version} has no header checksum (this dcrt reads {VERSION}); \
+                 prepare it again with this dcrt"
+            )));
         }
         let format = Format::new(u(12)).map_err(|e| bad(e.to_string()))?;
         let (node_blocks, tri_blocks, root, meta_len) = (u(16), u(20), u(24), u(28) as u64);
@@ -143,8 +181,16 @@ impl DcbFile {
         }
         let mut json = vec![0u8; meta_len as usize];
         file.read_exact(&mut json).map_err(|e| Error::io(path, e))?;
+        let stored = u32::from_le_bytes(head[40..44].try_into().unwrap_or_default());
+        if header_crc(&head, &json) != stored {
+            return Err(bad(
+                "header or metadata checksum mismatch: the file is corrupt".into(),
+            ));
+        }
         let meta: Meta = serde_json::from_slice(&json)
             .map_err(|e| bad(format!("metadata is not valid: {e}")))?;
+        super::check::meta(&meta, format, node_blocks, tri_blocks)
+            .map_err(|m| bad(format!("metadata: {m}")))?;
         let mut table = vec![0u8; 4 * n as usize];
         file.read_exact(&mut table)
             .map_err(|e| Error::io(path, e))?;
@@ -191,7 +237,13 @@ impl DcbFile {
                 "checksum mismatch: the block is corrupt and is not rendered",
             ));
         }
-        Ok(())
+        super::check::block(k, out, self.format, self.node_blocks, &self.meta).map_err(|m| {
+            Error::format(
+                &self.path,
+                Some(format!("block {k} (owner rank {owner})")),
+                format!("malformed: {m}"),
+            )
+        })
     }
 
     /// Every block, checked (a single-process render); `ranks` names owners in errors.
@@ -201,12 +253,15 @@ impl DcbFile {
         for (k, chunk) in words.chunks_mut(bw).enumerate() {
             self.read_block_into(k as u32, k as u32 % ranks.max(1), chunk)?;
         }
-        Ok(Blocks {
+        let blocks = Blocks {
             format: self.format,
             node_blocks: self.node_blocks,
             tri_blocks: self.tri_blocks,
             words,
-        })
+        };
+        super::check::depth(&blocks, self.meta.bvh_depth)
+            .map_err(|m| Error::format(&self.path, Some("node blocks".into()), m))?;
+        Ok(blocks)
     }
 }
 
@@ -303,8 +358,16 @@ mod tests {
         b[0] = b'X';
         check(&b, "bad magic");
         let mut b = good.clone();
-        b[8] = 2;
+        b[8] = 3;
         check(&b, "newer");
+        let mut b = good.clone();
+        b[8] = 1;
+        check(&b, "version 1 has no header checksum");
+        // One flipped bit in the metadata: another camera, caught by the header checksum.
+        let mut b = good.clone();
+        let at = FIXED + find(&b[FIXED..], b"\"focal_point\":[").unwrap() + 15;
+        b[at] ^= 4;
+        check(&b, "metadata checksum mismatch");
         let mut b = good.clone();
         let last = b.len() - 5;
         b[last] ^= 1;
@@ -313,6 +376,73 @@ mod tests {
         let mut b = good.clone();
         b.push(0);
         check(&b, "after the last block");
+        std::fs::remove_file(p).unwrap();
+    }
+
+    fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+        hay.windows(needle.len()).position(|w| w == needle)
+    }
+
+    /// Files whose checksums are all valid (as an edit that recomputes them gives) but whose
+    /// metadata or blocks do not describe the prepared tree.
+    #[test]
+    fn consistent_checksums_do_not_hide_bad_contents() {
+        let (blocks, meta) = sample();
+        let p = tmp("edited.dcb");
+        let check = |blocks: &Blocks, meta: &Meta, want: &str| {
+            write(&p, blocks, meta).unwrap();
+            let e = DcbFile::open(&p).and_then(|f| f.read_all(1).map(|_| ()));
+            let e = e.expect_err(want).to_string();
+            assert!(e.contains(want) && e.contains("edited.dcb"), "{e}");
+        };
+        let m = |f: &dyn Fn(&mut Meta)| {
+            let mut m = meta.clone();
+            f(&mut m);
+            m
+        };
+        check(&blocks, &m(&|m| m.triangles = 1), "metadata: 1 triangles");
+        check(&blocks, &m(&|m| m.nodes += 4096), "node blocks of 256");
+        check(&blocks, &m(&|m| m.bounds_min[0] = 1e30), "not a finite box");
+        check(&blocks, &m(&|m| m.mesh_first = vec![0, 5000]), "mesh table");
+        check(&blocks, &m(&|m| m.bvh_depth += 1), "declares");
+        check(
+            &blocks,
+            &m(&|m| m.bvh_depth -= 1),
+            "deeper than the declared",
+        );
+        let edit = |f: &dyn Fn(&mut Blocks)| {
+            let mut b = blocks.clone();
+            f(&mut b);
+            b
+        };
+        // All-zero blocks: the root's children would be the root itself.
+        check(
+            &edit(&|b| b.words.fill(0)),
+            &meta,
+            "block 0 (owner rank 0): malformed: node 0",
+        );
+        check(
+            &edit(&|b| b.words[6] = 4_000_000),
+            &meta,
+            "node 0: children",
+        );
+        let leaf = (0..meta.nodes as u32)
+            .find(|&i| blocks.node(i).is_leaf())
+            .unwrap();
+        let w = leaf as usize * 8 + 7;
+        check(
+            &edit(&|b| b.words[w] = 1 << 20),
+            &meta,
+            &format!("node {leaf}: leaf"),
+        );
+        let id = (blocks.node_blocks * blocks.format.words() + blocks.format.id_word()) as usize;
+        check(&edit(&|b| b.words[id] = 9999), &meta, "primitive id 9999");
+        let v = (blocks.node_blocks * blocks.format.words()) as usize;
+        check(
+            &edit(&|b| b.words[v] = f32::NAN.to_bits()),
+            &meta,
+            "not finite",
+        );
         std::fs::remove_file(p).unwrap();
     }
 }

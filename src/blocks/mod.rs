@@ -10,6 +10,7 @@
 //!   zeros after. Keeping the id in the block costs 4 bytes a triangle and means the block a ray
 //!   hits is all it needs to report the id.
 
+pub mod check;
 pub mod file;
 
 use crate::bvh::{Bvh, Node};

@@ -7,8 +7,11 @@ use glam::DVec3;
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Camera {
+    #[serde(deserialize_with = "super::strict::f64x3")]
     pub position: [f64; 3],
+    #[serde(deserialize_with = "super::strict::f64x3")]
     pub focal_point: [f64; 3],
+    #[serde(deserialize_with = "super::strict::f64x3")]
     pub view_up: [f64; 3],
     /// Vertical field of view in degrees.
     pub view_angle: f64,
@@ -35,9 +38,13 @@ impl Camera {
             .chain(&self.focal_point)
             .chain(&self.view_up)
             .chain(std::iter::once(&self.view_angle));
-        if !all.into_iter().all(|v| v.is_finite()) {
+        // The GPU gets the camera in f32: a value finite in f64 may not be.
+        if !all
+            .into_iter()
+            .all(|v| v.is_finite() && (*v as f32).is_finite())
+        {
             return Err(Error::Invalid(
-                "camera: every value must be a finite number".into(),
+                "camera: every value must be a finite number (in 32-bit floats)".into(),
             ));
         }
         let f = DVec3::from(self.focal_point) - DVec3::from(self.position);

@@ -6,6 +6,7 @@ pub mod generate;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+mod strict;
 
 use crate::error::{Error, Result};
 pub use camera::{Camera, CameraBasis};
@@ -41,8 +42,11 @@ struct RenderSpec {
     ao_rays: Option<u32>,
     ao_distance: Option<f32>,
     max_depth: Option<u32>,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     sky: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     sun: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     sun_direction: Option<[f32; 3]>,
     ambient: Option<f32>,
     /// Whether shadows mode adds a key light when the scene has no `[[light]]`.
@@ -56,8 +60,11 @@ struct RenderSpec {
 struct LightSpec {
     #[serde(rename = "type")]
     kind: LightKind,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     direction: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     position: Option<[f32; 3]>,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     color: Option<[f32; 3]>,
     intensity: Option<f32>,
 }
@@ -118,6 +125,7 @@ fn shading_of(
 struct ImageSpec {
     width: u32,
     height: u32,
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     background: Option<[f32; 3]>,
 }
 
@@ -133,8 +141,10 @@ pub struct MeshSpec {
     pub triangles: Option<u64>,
     pub seed: Option<u64>,
     /// Linear RGB albedo in [0, 1].
+    #[serde(default, deserialize_with = "strict::opt_f32x3")]
     pub color: Option<[f32; 3]>,
     /// Applied after `scale`.
+    #[serde(default, deserialize_with = "strict::opt_f64x3")]
     pub translate: Option<[f64; 3]>,
     pub scale: Option<f64>,
 }
@@ -163,8 +173,52 @@ const DEFAULT_GENERATOR_TRIANGLES: u64 = 100_000;
 
 impl Scene {
     pub fn load(path: &Path) -> Result<Scene> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        Scene::parse(&text, path)
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if matches!(ext.as_deref(), Some("ply" | "obj")) {
+            return Err(Error::format(
+                path,
+                None,
+                "expected a scene (.toml) or a block file (.dcb); a mesh is named by a [[mesh]] \
+                 entry of a scene",
+            ));
+        }
+        let bytes = read_input(path, MAX_SCENE_BYTES, "scene")?;
+        let text = std::str::from_utf8(&bytes).map_err(|e| {
+            let line = bytes[..e.valid_up_to()]
+                .iter()
+                .filter(|&&b| b == b'\n')
+                .count()
+                + 1;
+            Error::format(
+                path,
+                Some(format!("line {line}")),
+                "not valid UTF-8 text (is this a scene file?)",
+            )
+        })?;
+        Scene::parse(text, path)
+    }
+
+    /// The files a render or prepare of `path` reads: the scene or block file itself, and the
+    /// meshes or the block file a scene names. Outputs are checked against them.
+    pub fn input_files(path: &Path) -> Result<Vec<PathBuf>> {
+        let mut files = vec![path.to_path_buf()];
+        if path.extension().is_some_and(|e| e == "dcb") {
+            return Ok(files);
+        }
+        let scene = Scene::load(path)?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        files.extend(scene.model.iter().map(|m| dir.join(m)));
+        files.extend(
+            scene
+                .meshes
+                .iter()
+                .filter_map(|m| m.file.as_ref())
+                .map(|f| dir.join(f)),
+        );
+        Ok(files)
     }
 
     /// Parses scene text; `path` names the file in errors and anchors relative mesh paths.
@@ -184,6 +238,13 @@ impl Scene {
         check_image_size(image.width, image.height).map_err(|e| bad(e.to_string()))?;
         let background = image.background.unwrap_or(DEFAULT_BACKGROUND);
         check_color(background).map_err(|m| bad(format!("image.background: {m}")))?;
+        if file
+            .model
+            .as_ref()
+            .is_some_and(|m| m.as_os_str().is_empty())
+        {
+            return Err(bad("model: the path is empty".into()));
+        }
         match (&file.model, file.meshes.is_empty()) {
             (None, true) => return Err(bad("the scene has no [[mesh]] entries".into())),
             (Some(_), false) => {
@@ -219,6 +280,9 @@ impl Scene {
                     }
                 }
                 _ => {}
+            }
+            if m.file.as_ref().is_some_and(|f| f.as_os_str().is_empty()) {
+                return Err(at("file: the path is empty"));
             }
             if let Some(c) = m.color {
                 check_color(c).map_err(|e| at(&format!("color: {e}")))?;
@@ -297,6 +361,13 @@ impl Scene {
                 (mesh, PathBuf::from(format!("<generator {name}>")))
             };
             mesh.validate(&origin)?;
+            if mesh.triangles.is_empty() {
+                return Err(Error::format(
+                    &origin,
+                    None,
+                    "the mesh has no triangles (no faces read)",
+                ));
+            }
             model.push(&mesh, spec, &origin)?;
         }
         if model.triangles.is_empty() {
@@ -354,8 +425,48 @@ fn check_color(c: [f32; 3]) -> std::result::Result<(), String> {
     }
 }
 
+/// Scene files are small; beyond this one is not a scene (`/dev/zero`, a stray archive).
+pub const MAX_SCENE_BYTES: u64 = 64 << 20;
+
+/// Refuses an input that is not a regular file: a FIFO blocks forever, a device never ends, a
+/// directory reads as garbage. `what` names the role in the message.
+pub fn check_regular(path: &Path, what: &str) -> Result<()> {
+    let m = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !m.is_file() {
+        return Err(Error::format(
+            path,
+            None,
+            format!(
+                "is {}, not a regular file: a {what} must be a file",
+                crate::output::kind_of(&m)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Reads a whole regular file of at most `max` bytes.
+fn read_input(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
+    use std::io::Read;
+    check_regular(path, what)?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::new();
+    file.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > max {
+        return Err(Error::format(
+            path,
+            None,
+            format!("larger than {} MiB: not a {what} file", max >> 20),
+        ));
+    }
+    Ok(bytes)
+}
+
 /// Loads an OBJ or PLY file by its extension.
 pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    check_regular(path, "mesh")?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

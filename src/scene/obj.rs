@@ -99,15 +99,12 @@ pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
                     mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
                 }
             }
-            // Statements we do not use. Unknown keywords are skipped too (exporters add their
-            // own), but only if they look like keywords: a line starting with a number or
-            // control characters means the file is not OBJ at all.
-            k if k.starts_with(|c: char| c.is_ascii_alphabetic())
-                && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') => {}
+            k if IGNORED.contains(&k) => {}
             k => {
                 return Err(at(format!(
-                    "not an OBJ statement: '{}'",
-                    k.escape_debug().take(32).collect::<String>()
+                    "not an OBJ statement: '{}' (dcrt reads v and f and ignores {})",
+                    k.escape_debug().take(32).collect::<String>(),
+                    IGNORED.join(", ")
                 )));
             }
         }
@@ -126,6 +123,13 @@ pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
     Ok(mesh)
 }
 
+/// Statements that carry nothing dcrt renders (texture coordinates, normals, groups, materials,
+/// lines and points) and are skipped; any other keyword is an error, so a typo (`F` for `f`) is
+/// not dropped in silence. The README lists them too.
+const IGNORED: &[&str] = &[
+    "vt", "vn", "vp", "o", "g", "s", "mtllib", "usemtl", "l", "p",
+];
+
 fn parse_number(tok: &str) -> std::result::Result<f32, String> {
     tok.parse::<f32>()
         .map_err(|_| format!("expected a number, found '{}'", snippet(tok)))
@@ -136,10 +140,14 @@ fn parse_number(tok: &str) -> std::result::Result<f32, String> {
 /// past `defined` are returned as they are and checked at the end of the file.
 fn resolve_index(tok: &str, defined: usize) -> std::result::Result<u32, String> {
     // A byte scan: tokens are short, and this is the hottest line of a big OBJ file.
-    let digits = tok
-        .bytes()
-        .position(|c| c == b'/')
-        .map_or(tok, |end| &tok[..end]);
+    let digits = match tok.bytes().position(|c| c == b'/') {
+        None => tok,
+        Some(end) => {
+            check_corner_rest(&tok[end + 1..])
+                .map_err(|()| format!("malformed face corner '{}'", snippet(tok)))?;
+            &tok[..end]
+        }
+    };
     let i: i64 = digits
         .parse()
         .map_err(|_| format!("expected a vertex index, found '{}'", snippet(tok)))?;
@@ -155,6 +163,16 @@ fn resolve_index(tok: &str, defined: usize) -> std::result::Result<u32, String> 
             format!("vertex index {i} out of range")
         }
     })
+}
+
+/// What follows the vertex index of a corner: `t`, `/n` or `t/n`, each an integer index.
+fn check_corner_rest(rest: &str) -> std::result::Result<(), ()> {
+    let index = |p: &str| p.parse::<i64>().map(|_| ()).map_err(|_| ());
+    match rest.split_once('/') {
+        None => index(rest),
+        Some(("", n)) => index(n),
+        Some((t, n)) => index(t).and(index(n)),
+    }
 }
 
 /// A token as it can be shown in a message: short, and with control characters escaped.
@@ -293,10 +311,30 @@ mod tests {
         );
         assert_err(
             b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n0 0 0\n",
-            "line 6",
-            "not an OBJ statement: '0'",
+            "line 1",
+            "not an OBJ statement: 'ply'",
         );
         assert_err(b"\x00\x01\x02", "line 1", "not an OBJ statement");
+    }
+
+    #[test]
+    fn unknown_statements_and_corners_are_refused() {
+        let v = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n";
+        assert_err(format!("{v}F 1 3 4\n").as_bytes(), "line 5", "'F'");
+        assert_err(format!("{v}curv 0 1 1 2\n").as_bytes(), "line 5", "'curv'");
+        assert_err(
+            format!("{v}f 1/x/y 2 4\n").as_bytes(),
+            "line 5",
+            "malformed face corner '1/x/y'",
+        );
+        for bad in ["1/", "1/2/", "1//", "1/2/3/4", "1/x"] {
+            assert_err(
+                format!("{v}f {bad} 2 4\n").as_bytes(),
+                "line 5",
+                "malformed",
+            );
+        }
+        parse(&format!("{v}vp 0 1\nl 1 2\np 3\nf 1/-1/2 2//-1 4/3\n")).unwrap();
     }
 
     #[test]

@@ -115,7 +115,15 @@ fn non_finite_coordinates() {
 fn scenes_without_triangles() {
     let d = TempDir::new("empty");
     let s = scene_with_mesh(&d, "points.obj", b"v 0 0 0\nv 1 0 0\n");
-    fails(&d, &s, &[], &["scene.toml", "no triangles"]);
+    fails(&d, &s, &[], &["points.obj", "the mesh has no triangles"]);
+    // `faces` is not the `face` element: a mesh without faces, named.
+    let ply = PLY_HEADER.replace("element face 1", "element faces 1");
+    let s = scene_with_mesh(
+        &d,
+        "faces.ply",
+        format!("{ply}0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").as_bytes(),
+    );
+    fails(&d, &s, &[], &["faces.ply"]);
     let s = d.write("nomesh.toml", CAMERA);
     fails(&d, &s, &[], &["nomesh.toml", "no [[mesh]]"]);
 }
@@ -186,4 +194,150 @@ fn bad_command_line_values() {
     fails(&d, &s, &["--tile", "0"], &["--tile"]);
     fails(&d, &s, &["--timeout", "0"], &["--timeout"]);
     fails(&d, &s, &["--display-bench"], &["mpirun"]);
+}
+
+#[test]
+fn scene_values_are_strict() {
+    let d = TempDir::new("strict");
+    d.write("tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let mesh = "[[mesh]]\nfile = \"tri.obj\"\n";
+    let cases = [
+        (
+            "pos4.toml",
+            CAMERA.replace("[0, -3, 0]", "[0, -6, 2, 99]"),
+            "got 4",
+        ),
+        (
+            "far.toml",
+            CAMERA.replace("[0, -3, 0]", "[0, -3, 1e39]"),
+            "32-bit",
+        ),
+        (
+            "sun4.toml",
+            format!("{CAMERA}[render]\nsun = [1, 1, 1, 1]\n"),
+            "got 4",
+        ),
+        (
+            "light4.toml",
+            format!("{CAMERA}[[light]]\ntype = \"directional\"\ndirection = [0, 0, -1, 0]\n"),
+            "got 4",
+        ),
+        (
+            "color4.toml",
+            format!("{CAMERA}[[mesh]]\nfile = \"tri.obj\"\ncolor = [1, 0, 0, 1]\n"),
+            "got 4",
+        ),
+        (
+            "bg2.toml",
+            CAMERA.replace("height = 16\n", "height = 16\nbackground = [0, 0]\n"),
+            "got 2",
+        ),
+        (
+            "model.toml",
+            "model = \"\"\n".to_string(),
+            "model: the path is empty",
+        ),
+    ];
+    for (name, text, needle) in cases {
+        let text = if text.contains("[[mesh]]") || text.contains("model") {
+            text
+        } else {
+            format!("{text}{mesh}")
+        };
+        let s = d.write(name, text);
+        fails(&d, &s, &[], &[name, needle]);
+    }
+}
+
+#[test]
+fn obj_typos_are_errors() {
+    let d = TempDir::new("objtypo");
+    let v = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n";
+    let s = scene_with_mesh(&d, "typo.obj", format!("{v}f 1 2 3\nF 1 3 4\n").as_bytes());
+    fails(&d, &s, &[], &["typo.obj", "line 6", "'F'"]);
+    let s = scene_with_mesh(&d, "corner.obj", format!("{v}f 1/x/y 2 4\n").as_bytes());
+    fails(&d, &s, &[], &["corner.obj", "line 5", "1/x/y"]);
+}
+
+#[test]
+fn inputs_must_be_regular_files_of_bounded_size() {
+    let d = TempDir::new("special");
+    fails(
+        &d,
+        std::path::Path::new("/dev/zero"),
+        &[],
+        &["/dev/zero", "character device"],
+    );
+    std::fs::create_dir_all(d.path("dir.toml")).unwrap();
+    fails(
+        &d,
+        &d.path("dir.toml"),
+        &[],
+        &["dir.toml", "is a directory"],
+    );
+    // A FIFO as a mesh would block the loader forever.
+    let fifo = d.path("pipe.obj");
+    let r = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(r.success());
+    let s = d.write(
+        "fifo.toml",
+        format!("{CAMERA}[[mesh]]\nfile = \"pipe.obj\"\n"),
+    );
+    fails(&d, &s, &[], &["pipe.obj", "a FIFO"]);
+    // A scene past the size cap, sparse so that it costs no disk.
+    let big = d.path("big.toml");
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(65 << 20)
+        .unwrap();
+    fails(&d, &big, &[], &["big.toml", "larger than 64 MiB"]);
+    // A directory or a scene where the model should be says what it is.
+    let m = d.write("m.toml", "model = \"dir.toml\"\n");
+    fails(&d, &m, &[], &["dir.toml", "is a directory"]);
+    let s = d.write("s.toml", format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\n"));
+    let m = d.write("m2.toml", "model = \"s.toml\"\n");
+    fails(&d, &m, &[], &["s.toml", "it is text (a scene?)"]);
+    let _ = s;
+}
+
+#[test]
+fn messages_say_their_cause_once() {
+    let d = TempDir::new("messages");
+    let r = dcrt(&[&"render", &d.path("nope.toml"), &"-o", &d.path("o.png")]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.matches("No such file").count(), 1, "{err}");
+    let s = d.write(
+        "u.toml",
+        b"[camera]\nposition = [0, 0, 1]\n# \xff\n".as_slice(),
+    );
+    fails(&d, &s, &[], &["u.toml", "line 3", "UTF-8"]);
+    let ply = d.write("bumpy.ply", PLY_HEADER);
+    fails(
+        &d,
+        &ply,
+        &[],
+        &[
+            "bumpy.ply",
+            "expected a scene (.toml) or a block file (.dcb)",
+        ],
+    );
+    let s = d.write(
+        "g.toml",
+        format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
+    );
+    fails(
+        &d,
+        &s,
+        &["--virtual-ranks", "0"],
+        &["--virtual-ranks must be at least 1"],
+    );
+    fails(
+        &d,
+        &s,
+        &["--virtual-ranks", "2", "--rank", "2"],
+        &["--rank 2 is out of range"],
+    );
 }

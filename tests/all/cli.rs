@@ -106,10 +106,25 @@ fn damaged_block_files_name_block_and_owner() {
     let mut v = good.clone();
     v[8] = 9;
     let newer = d.write("newer.dcb", &v);
+    let mut v = good.clone();
+    v[8] = 1;
+    let old = d.write("old.dcb", &v);
+    // One flipped bit in the metadata's camera (0.0 -> 4.0) would render another view.
+    let mut v = good.clone();
+    let at = v
+        .windows(15)
+        .position(|w| w == b"\"focal_point\":[")
+        .unwrap()
+        + 15;
+    assert_eq!(v[at], b'0');
+    v[at] ^= 4;
+    let flipped = d.write("flipped.dcb", &v);
     for (f, needle) in [
         (truncated, "truncated"),
         (magic, "bad magic"),
         (newer, "newer"),
+        (old, "prepare it again"),
+        (flipped, "metadata checksum mismatch"),
     ] {
         let r = dcrt(&[&"render", &f, &"-o", &out]);
         let err = String::from_utf8_lossy(&r.stderr);

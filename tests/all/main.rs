@@ -10,6 +10,7 @@ mod frames;
 mod gpu_vs_cpu;
 mod layout;
 mod mirror;
+mod outputs;
 mod robust;
 mod scale;
 mod shaders;

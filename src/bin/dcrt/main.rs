@@ -221,6 +221,15 @@ impl DcArgs {
         let Some(n) = self.virtual_ranks else {
             return Ok(None);
         };
+        if n == 0 {
+            bail!("--virtual-ranks must be at least 1");
+        }
+        if self.rank >= n {
+            bail!(
+                "--rank {} is out of range: --virtual-ranks {n} gives ranks 0..{n}",
+                self.rank
+            );
+        }
         dcrt::dc::Ranks::new(n, self.rank)?;
         Ok(Some(DcOptions {
             ranks: n,
@@ -322,10 +331,27 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", message(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes, each once: a library error already quotes its source (`path:
+/// cause`), so a cause whose text is already there is not repeated.
+fn message(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let c = cause.to_string();
+        if text.contains(&c) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&c);
+    }
+    text
 }
 
 fn settings(g: &GpuArgs) -> Settings {

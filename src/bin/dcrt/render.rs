@@ -1,7 +1,7 @@
 //! `dcrt render`: the options checked before any work, then a cluster role under an MPI launcher,
 //! or the frames of one process.
 
-use crate::checks::{check_budget, check_writable};
+use crate::checks::check_budget;
 use crate::{RenderArgs, render_cluster, settings};
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
@@ -10,9 +10,9 @@ use dcrt::gpu::tracer::Settings;
 use dcrt::output;
 use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
 use dcrt::render::{Loaded, mib};
-use dcrt::scene::check_image_size;
+use dcrt::scene::{Scene, check_image_size};
 use dcrt::shading::Shading;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 pub fn render(a: RenderArgs) -> Result<()> {
     check_budget(a.gpu.step_budget)?;
@@ -27,9 +27,17 @@ pub fn render(a: RenderArgs) -> Result<()> {
     }
     // Options are checked before the scene is loaded.
     a.shade.apply(Shading::default())?;
-    for out in std::iter::once(&a.output).chain(a.exr.as_ref()) {
-        check_writable(out)?;
+    // Every output path is checked before the scene is loaded, so a run never fails at the end
+    // over a path, and no output replaces an input (docs/ARCHITECTURE.md, Scene and output
+    // contract).
+    let mut outputs = vec![("PNG", a.output.as_path(), a.frames)];
+    if let Some(exr) = &a.exr {
+        outputs.push(("EXR", exr.as_path(), a.frames));
     }
+    if let Some(stats) = &a.cluster.stats {
+        outputs.push(("statistics", stats.as_path(), 1));
+    }
+    output::check_outputs(&outputs, &Scene::input_files(&a.scene)?)?;
     if let Some(dir) = &a.trace {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
@@ -55,8 +63,21 @@ pub fn render(a: RenderArgs) -> Result<()> {
 }
 
 /// The frames of one process, replicated or as one virtual rank of a distributed cache: PNG (and
-/// EXR) per frame, a line on stderr, traces and `--stats` when asked.
+/// EXR) per frame, a line on stderr, traces and `--stats` when asked. Each file is written
+/// atomically; if the run fails, the files it has written are removed, so a failed run leaves
+/// nothing half done.
 fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
+    let mut written = Vec::new();
+    let done = frames_of(a, format, &mut written);
+    if done.is_err() {
+        for p in &written {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+    done
+}
+
+fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Result<()> {
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let mut report = Vec::new();
@@ -108,8 +129,11 @@ fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
             );
             let png = numbered(&a.output);
             output::write_png_exposed(&png, &frame, a.exposure)?;
+            written.push(png.clone());
             if let Some(exr) = &a.exr {
-                output::write_exr(&numbered(exr), &frame, &a.aov)?;
+                let exr = numbered(exr);
+                output::write_exr(&exr, &frame, &a.aov)?;
+                written.push(exr);
             }
             eprintln!(
                 "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
@@ -143,8 +167,8 @@ fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
     if let Some(path) = &a.cluster.stats {
         let all =
             serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});
-        std::fs::write(path, all.to_string())
-            .with_context(|| format!("{}: cannot write the statistics", path.display()))?;
+        output::write_bytes(path, all.to_string().as_bytes())?;
+        written.push(path.clone());
     }
     Ok(())
 }

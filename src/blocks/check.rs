@@ -1,0 +1,151 @@
+//! Plausibility of a block file's contents beyond its checksums: the metadata against the header,
+//! and the structure of each block where it is read. A CRC proves a block is what was written,
+//! not that what was written is a tree; these checks keep an edited file from rendering a wrong
+//! image or walking the GPU off its stack. Each is linear in what is read, so it runs on load.
+
+use super::file::Meta;
+use super::{Blocks, Format, NODE_WORDS, TRI_WORDS};
+use crate::bvh::layout::PAD;
+
+/// The metadata agrees with the header's block counts and is itself consistent.
+pub fn meta(m: &Meta, format: Format, node_blocks: u32, tri_blocks: u32) -> Result<(), String> {
+    let npb = u64::from(format.nodes_per_block());
+    let tpb = u64::from(format.tris_per_block());
+    if m.nodes == 0 || m.nodes.div_ceil(npb) != u64::from(node_blocks) {
+        return Err(format!(
+            "{} nodes do not fill the header's {node_blocks} node blocks of {npb}",
+            m.nodes
+        ));
+    }
+    if m.triangles == 0
+        || m.triangles > u64::from(u32::MAX)
+        || m.triangles.div_ceil(tpb) != u64::from(tri_blocks)
+    {
+        return Err(format!(
+            "{} triangles do not fill the header's {tri_blocks} triangle blocks of {tpb}",
+            m.triangles
+        ));
+    }
+    if m.bvh_depth == 0 || u64::from(m.bvh_depth) > m.nodes {
+        return Err(format!(
+            "BVH depth {} is impossible for {} nodes",
+            m.bvh_depth, m.nodes
+        ));
+    }
+    let increasing = m.mesh_first.windows(2).all(|w| w[0] < w[1]);
+    if m.mesh_first.first() != Some(&0)
+        || !increasing
+        || m.mesh_first.len() != m.colors.len()
+        || m.mesh_first
+            .last()
+            .is_some_and(|&f| u64::from(f) >= m.triangles)
+    {
+        return Err("inconsistent mesh table (mesh_first, colors)".into());
+    }
+    let finite_nonneg = |c: &[f32; 3]| c.iter().all(|v| v.is_finite() && *v >= 0.0);
+    if !m.colors.iter().all(finite_nonneg) || !finite_nonneg(&m.background) {
+        return Err("colours must be finite and non-negative".into());
+    }
+    let bounded = (0..3).all(|a| {
+        m.bounds_min[a].is_finite()
+            && m.bounds_max[a].is_finite()
+            && m.bounds_min[a] <= m.bounds_max[a]
+    });
+    if !bounded {
+        return Err(format!(
+            "bounds {:?}..{:?} are not a finite box",
+            m.bounds_min, m.bounds_max
+        ));
+    }
+    m.camera.validate().map_err(|e| e.to_string())?;
+    crate::scene::check_image_size(m.width, m.height).map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// Block `k` is well formed: in a node block every node's children lie after it and inside the
+/// node list and every leaf's triangles inside the triangle list; in a triangle block every
+/// triangle is finite and its primitive id in range.
+pub fn block(
+    k: u32,
+    words: &[u32],
+    format: Format,
+    node_blocks: u32,
+    m: &Meta,
+) -> Result<(), String> {
+    if k < node_blocks {
+        let npb = format.nodes_per_block();
+        for s in 0..npb {
+            let i = u64::from(k) * u64::from(npb) + u64::from(s);
+            if i >= m.nodes {
+                break;
+            }
+            if i == PAD as u64 {
+                continue;
+            }
+            let w = &words[(s * NODE_WORDS) as usize..((s + 1) * NODE_WORDS) as usize];
+            let (index, count) = (u64::from(w[6]), u64::from(w[7]));
+            if count > 0 {
+                if index + count > m.triangles {
+                    return Err(format!(
+                        "node {i}: leaf triangles {index}..{} past the {} triangles",
+                        index + count,
+                        m.triangles
+                    ));
+                }
+            } else if index <= i || index % 2 != 0 || index + 1 >= m.nodes {
+                return Err(format!(
+                    "node {i}: children at {index} are not an even pair after it within the {} nodes",
+                    m.nodes
+                ));
+            }
+        }
+    } else {
+        let tpb = format.tris_per_block();
+        let id0 = format.id_word() as usize;
+        for s in 0..tpb {
+            let t = u64::from(k - node_blocks) * u64::from(tpb) + u64::from(s);
+            if t >= m.triangles {
+                break;
+            }
+            let w = &words[(s * TRI_WORDS) as usize..((s + 1) * TRI_WORDS) as usize];
+            if !w.iter().all(|&b| f32::from_bits(b).is_finite()) {
+                return Err(format!("triangle {t}: a coordinate is not finite"));
+            }
+            let id = words[id0 + s as usize];
+            if u64::from(id) >= m.triangles {
+                return Err(format!(
+                    "triangle {t}: primitive id {id} past the {} triangles",
+                    m.triangles
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// With every block at hand: the tree's depth is the declared one (the GPU's traversal stack is
+/// sized by it). Run after `block` has checked each block, so children lie after parents and the
+/// walk ends.
+pub fn depth(blocks: &Blocks, declared: u32) -> Result<(), String> {
+    let mut stack = vec![(0u32, 1u32)];
+    let mut deepest = 0;
+    while let Some((i, d)) = stack.pop() {
+        deepest = deepest.max(d);
+        if deepest > declared {
+            return Err(format!(
+                "the tree is deeper than the declared BVH depth {declared}"
+            ));
+        }
+        let n = blocks.node(i);
+        if !n.is_leaf() {
+            stack.push((n.index, d + 1));
+            stack.push((n.index + 1, d + 1));
+        }
+    }
+    if deepest != declared {
+        return Err(format!(
+            "the tree has depth {deepest}, the metadata declares {declared}"
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,245 @@
+//! Outputs are safe: written through a temporary file and renamed into place, never over an
+//! input of the same run or over something that is not a regular file, checked before any
+//! rendering, and on failure nothing of the run is left (what was there before stays).
+
+use crate::common::*;
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
+
+const SCENE: &str = "[camera]\nposition = [0.3, 0.3, 3]\nfocal_point = [0.3, 0.3, 0]\n\
+                     view_up = [0, 1, 0]\nview_angle = 40\n[image]\nwidth = 24\nheight = 16\n\
+                     [[mesh]]\nfile = \"tri.obj\"\n";
+
+fn setup(tag: &str) -> (TempDir, PathBuf) {
+    let d = TempDir::new(tag);
+    d.write("tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let s = d.write("s.toml", SCENE);
+    (d, s)
+}
+
+/// Runs dcrt, expects exit 1 with every `needles` in stderr; returns stderr.
+fn refused(args: &[&dyn AsRef<OsStr>], needles: &[&str]) -> String {
+    let r = dcrt(args);
+    let err = String::from_utf8_lossy(&r.stderr).to_string();
+    assert_eq!(r.status.code(), Some(1), "should fail cleanly: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
+    }
+    err
+}
+
+/// The names in `dir`, sorted: what a run left behind.
+fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn outputs_never_replace_the_run_s_inputs() {
+    let (d, s) = setup("out-inputs");
+    let before = std::fs::read(&s).unwrap();
+    refused(&[&"render", &s, &"-o", &s], &["would replace the input"]);
+    refused(&[&"prepare", &s, &"-o", &s], &["would replace the input"]);
+    let mesh = d.path("tri.obj");
+    refused(
+        &[&"prepare", &s, &"-o", &mesh],
+        &["tri.obj", "would replace the input"],
+    );
+    // Through another spelling of the same path.
+    let other = d.path(".").join("s.toml");
+    refused(
+        &[&"render", &s, &"-o", &other],
+        &["would replace the input"],
+    );
+    assert_eq!(std::fs::read(&s).unwrap(), before);
+    let dcb = d.path("good.dcb");
+    let r = dcrt(&[&"prepare", &s, &"-o", &dcb]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let good = std::fs::read(&dcb).unwrap();
+    refused(
+        &[&"render", &dcb, &"-o", &dcb],
+        &["good.dcb", "would replace the input"],
+    );
+    let png = d.path("x.png");
+    refused(
+        &[&"render", &dcb, &"-o", &png, &"--exr", &dcb],
+        &["EXR output would replace"],
+    );
+    // A scene naming the block file: the block file is an input too.
+    let named = d.write("named.toml", "model = \"good.dcb\"\n");
+    refused(
+        &[&"render", &named, &"-o", &dcb],
+        &["would replace the input"],
+    );
+    assert_eq!(std::fs::read(&dcb).unwrap(), good);
+    assert!(!png.exists());
+}
+
+#[test]
+fn non_regular_outputs_are_refused_and_kept() {
+    use std::os::unix::fs::FileTypeExt;
+    let (d, s) = setup("out-special");
+    refused(
+        &[&"render", &s, &"-o", &"/dev/full"],
+        &["/dev/full", "not a regular file"],
+    );
+    refused(
+        &[&"prepare", &s, &"-o", &"/dev/null"],
+        &["a character device"],
+    );
+    let png = d.path("x.png");
+    refused(
+        &[&"render", &s, &"-o", &png, &"--exr", &"/dev/null"],
+        &["/dev/null"],
+    );
+    assert!(
+        std::fs::metadata("/dev/null")
+            .unwrap()
+            .file_type()
+            .is_char_device()
+    );
+    assert!(!png.exists());
+    let dir = d.path("adir");
+    std::fs::create_dir(&dir).unwrap();
+    refused(&[&"prepare", &s, &"-o", &dir], &["adir", "a directory"]);
+    refused(
+        &[&"render", &s, &"-o", &png, &"--stats", &dir],
+        &["adir", "a directory"],
+    );
+    assert!(!png.exists(), "checked before rendering: no PNG");
+    assert_eq!(listing(&d.0), ["adir", "s.toml", "tri.obj"]);
+    assert!(listing(&dir).is_empty());
+}
+
+#[test]
+fn png_exr_and_stats_paths_must_differ() {
+    let (d, s) = setup("out-same");
+    let p = d.path("same.png");
+    refused(
+        &[&"render", &s, &"-o", &p, &"--exr", &p],
+        &["both the PNG and the EXR"],
+    );
+    refused(
+        &[&"render", &s, &"-o", &p, &"--stats", &p],
+        &["both the PNG and the statistics"],
+    );
+    let e = d.path("same.exr");
+    refused(
+        &[&"render", &s, &"-o", &p, &"--exr", &e, &"--stats", &e],
+        &["both the EXR and the statistics"],
+    );
+    assert!(!p.exists() && !e.exists());
+    // A directory no file can be created in (procfs refuses even root): refused before
+    // rendering, so the PNG is not written either.
+    refused(
+        &[&"render", &s, &"-o", &p, &"--exr", &"/proc/x.exr"],
+        &["cannot create the EXR"],
+    );
+    assert!(!p.exists());
+}
+
+/// `dcrt ARGS` under `ulimit -f BLOCKS` with SIGXFSZ ignored: writes past the limit fail with
+/// EFBIG, as on a full filesystem.
+fn limited(blocks: u32, args: &[&dyn AsRef<OsStr>]) -> std::process::Output {
+    let mut cmd = std::process::Command::new("bash");
+    cmd.arg("-c")
+        .arg(format!(
+            "ulimit -f {blocks}; trap '' XFSZ; exec \"$0\" \"$@\""
+        ))
+        .arg(env!("CARGO_BIN_EXE_dcrt"));
+    for a in args {
+        cmd.arg(a);
+    }
+    cmd.output().unwrap()
+}
+
+#[test]
+fn a_full_filesystem_fails_the_run_and_keeps_the_old_files() {
+    let (d, s) = setup("out-full");
+    let png = d.path("out.png");
+    std::fs::write(&png, b"old").unwrap();
+    let r = limited(0, &[&"render", &s, &"-o", &png]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("out.png") && !err.contains("wrote"), "{err}");
+    assert_eq!(std::fs::read(&png).unwrap(), b"old", "the old PNG stays");
+    let r = limited(0, &[&"render", &s, &"-o", &png, &"--frames", &"3"]);
+    assert_eq!(r.status.code(), Some(1));
+    let dcb = d.path("m.dcb");
+    let r = limited(0, &[&"prepare", &s, &"-o", &dcb]);
+    assert_eq!(
+        r.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert_eq!(
+        listing(&d.0),
+        ["out.png", "s.toml", "tri.obj"],
+        "no partial files"
+    );
+    // Room for a PNG (a few hundred bytes) but not its EXR with every AOV: the frame written
+    // before the failure is removed too.
+    let exr = d.path("out.exr");
+    let big = d.write(
+        "big.toml",
+        SCENE.replace("width = 24\nheight = 16", "width = 64\nheight = 64"),
+    );
+    let r = limited(
+        4,
+        &[
+            &"render",
+            &big,
+            &"-o",
+            &png,
+            &"--frames",
+            &"2",
+            &"--exr",
+            &exr,
+            &"--aov",
+            &"depth",
+            &"--aov",
+            &"id",
+            &"--aov",
+            &"normal",
+        ],
+    );
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("out_0000.exr"), "{err}");
+    assert_eq!(
+        listing(&d.0),
+        ["big.toml", "out.png", "s.toml", "tri.obj"],
+        "{err}"
+    );
+}
+
+#[test]
+fn outputs_are_replaced_whole() {
+    let (d, s) = setup("out-ok");
+    let png = d.path("out.png");
+    std::fs::write(&png, b"old").unwrap();
+    let r = dcrt(&[&"render", &s, &"-o", &png, &"--frames", &"2"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert_eq!(std::fs::read(&png).unwrap(), b"old", "frames are numbered");
+    for f in ["out_0000.png", "out_0001.png"] {
+        assert!(std::fs::read(d.path(f)).unwrap().starts_with(b"\x89PNG"));
+    }
+    let r = dcrt(&[&"render", &s, &"-o", &png]);
+    assert!(r.status.success());
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    assert_eq!(
+        listing(&d.0),
+        [
+            "out.png",
+            "out_0000.png",
+            "out_0001.png",
+            "s.toml",
+            "tri.obj"
+        ]
+    );
+}
