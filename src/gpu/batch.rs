@@ -3,7 +3,7 @@
 //! path states, and the buffers the host reads back through.
 
 use super::Gpu;
-use super::layout::{FaultHeader, Path, Pixel, RayState, RoundReadback, Stats};
+use super::layout::{Counter, FaultHeader, Path, Pixel, RayState, RoundReadback, Stats};
 use crate::error::{Error, Result};
 use std::mem::size_of;
 
@@ -98,9 +98,10 @@ impl Batch {
             gpu.buffer("live1", n * 4, U::STORAGE),
         ];
         let counter_usage = U::STORAGE | U::INDIRECT | U::COPY_SRC | U::COPY_DST;
+        let counter_bytes = size_of::<Counter>() as u64;
         let counters = [
-            gpu.buffer("counter0", 16, counter_usage),
-            gpu.buffer("counter1", 16, counter_usage),
+            gpu.buffer("counter0", counter_bytes, counter_usage),
+            gpu.buffer("counter1", counter_bytes, counter_usage),
         ];
         let stats = gpu.buffer(
             "stats",

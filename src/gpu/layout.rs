@@ -263,6 +263,6 @@ pub struct MirrorResult {
     pub offset: [f32; 4],
     pub dir: [f32; 4],
     pub sample: [f32; 4],
-    /// `hash`, then `tile_pixel` of the case's index (x, y).
+    /// `hash`, then `tile_pixel` of the case's index (x, y), then `cache_line` of the hash input over 4.
     pub words: [u32; 4],
 }

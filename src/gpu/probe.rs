@@ -68,7 +68,8 @@ impl Tracer<'_> {
 }
 
 /// Runs the mirror kernel (tests): each case through the shared WGSL functions that have CPU
-/// twins in `mirror`, with `params` as the uniform (its `seed`, `first_tile`, `tiles_x` matter).
+/// twins in `mirror` (and `dc::cache_line`), with `params` as the uniform (its `seed`,
+/// `first_tile`, `tiles_x` and `dc_*` matter).
 pub fn run_mirror(
     gpu: &super::Gpu,
     params: &Params,
@@ -81,10 +82,19 @@ pub fn run_mirror(
     let input = init("mirror in", bytemuck::cast_slice(cases), U::STORAGE);
     let bytes = (cases.len() * size_of::<MirrorResult>()) as u64;
     let out = gpu.buffer("mirror out", bytes, U::STORAGE | U::COPY_SRC);
+    // The cache's tables, one buffer each (a binding may not share a writable buffer):
+    // `cache_line` reads only `params`.
+    let unused: Vec<wgpu::Buffer> = (0..4)
+        .map(|_| gpu.buffer("unused", 32, U::STORAGE))
+        .collect();
     let bound = kernel.bind(gpu, |name| match name {
         "params" => Some(params_buf.as_entire_binding()),
         "mirror_in" => Some(input.as_entire_binding()),
         "mirror_out" => Some(out.as_entire_binding()),
+        "block_rows" => Some(unused[0].as_entire_binding()),
+        "faults" => Some(unused[1].as_entire_binding()),
+        "requested" => Some(unused[2].as_entire_binding()),
+        "waiters" => Some(unused[3].as_entire_binding()),
         _ => None,
     });
     let mut enc = gpu.device.create_command_encoder(&Default::default());

@@ -2,6 +2,7 @@
 //! `mirror` kernel: integer functions bit for bit, float ones within the precision WGSL allows.
 
 use crate::common::*;
+use dcrt::dc::{CacheMap, Ranks, cache_line};
 use dcrt::gpu::layout::{MirrorCase, Params};
 use dcrt::gpu::probe::run_mirror;
 use dcrt::mirror::offset::offset_ray_with;
@@ -91,6 +92,34 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
         );
         let t = tile_pixel(p.first_tile, p.tiles_x, i as u32);
         assert_eq!((r.words[1], r.words[2]), t, "tile_pixel, slot {i}");
+    }
+}
+
+#[test]
+fn cache_line_matches_the_gpu_for_both_mappings() {
+    let gpu = gpu();
+    let cases = cases(4096);
+    for (map, code) in [(CacheMap::Ize, 0), (CacheMap::Demarle, 1)] {
+        for (n, rank, lines) in [(1, 0, 7), (3, 1, 64), (8, 5, 1000), (5, 4, 1)] {
+            let p = Params {
+                dc_ranks: n,
+                dc_rank: rank,
+                dc_lines: lines,
+                dc_map: code,
+                ..params()
+            };
+            let out = run_mirror(&gpu, &p, &cases).unwrap();
+            let ranks = Ranks::new(n, rank).unwrap();
+            for (c, r) in cases.iter().zip(&out) {
+                // Blocks the rank owns never reach the cache; the formula is checked for all.
+                let k = c.words[0] >> 2;
+                let want = cache_line(map, ranks, lines, k);
+                assert_eq!(
+                    r.words[3], want,
+                    "cache_line({k}) {map:?} n{n} r{rank} l{lines}"
+                );
+            }
+        }
     }
 }
 
