@@ -128,6 +128,9 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
         height: opts.height.unwrap_or(of.height),
     };
     check_image_size(image.width, image.height)?;
+    if rank == Roles::DISPLAY {
+        crate::render::memory::check_image(image.width, image.height)?;
+    }
     // Applied here, after the scene is read, so that a rank that cannot read it still takes
     // part in the agreement.
     let shading = opts.shade.apply(of.shading)?;

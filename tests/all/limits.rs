@@ -28,3 +28,40 @@ fn identical_triangles_build_shallow_and_render() {
         "the triangle is not in the image: {err}"
     );
 }
+
+/// The bench applies the generators' limit: an absurd `--triangles` is an error naming the
+/// option, not an allocation abort.
+#[test]
+fn bench_refuses_triangles_past_the_generators_limit() {
+    let out = dcrt(&[&"bench", &"--triangles", &"18446744073709551615"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--triangles must be between 1 and 1000000000, got 18446744073709551615"),
+        "{err}"
+    );
+}
+
+/// A generator at its documented maximum is refused before it runs, with the size it needs and
+/// how to lower it (where the machine has less than the ~240 GiB it would take).
+#[test]
+fn a_generator_too_large_for_memory_is_refused_with_its_size() {
+    if dcrt::render::memory::available().is_none_or(|a| a > 200 << 30) {
+        return;
+    }
+    let dir = TempDir::new("bigmodel");
+    let scene = dir.write(
+        "big.toml",
+        "[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000000000\n",
+    );
+    let png = dir.path("big.png");
+    let out = dcrt(&[&"render", &scene, &"-o", &png]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("generating 1000000000 triangles for") && err.contains("GiB"),
+        "{err}"
+    );
+    assert!(err.contains("lower the generators' `triangles`"), "{err}");
+    assert!(!exists(&png));
+}
