@@ -589,8 +589,8 @@ fn a_different_camera_or_mode_on_one_rank_stops_every_rank() {
     }
 }
 
-/// A render rank that stops (SIGSTOP: hung, not dead) mid-frame: with `--timeout 3` the job
-/// ends with an error within 10 s.
+/// A render rank that stops (SIGSTOP: hung, not dead) mid-frame, or once its work is done:
+/// with `--timeout 3` the job ends with an error within 10 s.
 #[test]
 fn a_hung_rank_ends_the_job_within_its_timeout() {
     let fx = Fixture::new("cl-hung");
@@ -607,13 +607,16 @@ fn a_hung_rank_ends_the_job_within_its_timeout() {
         "--timeout",
         "3",
     ];
-    let job = mpirun(4, SHARED, &args, &[("DCRT_TEST_FAIL", "stop@3")], 30);
-    let err = stderr(&job.out);
-    assert!(!job.out.status.success(), "the job succeeded: {err}");
-    assert!(
-        job.elapsed < Duration::from_secs(10),
-        "the job took {:?}: {err}",
-        job.elapsed
-    );
-    assert!(err.contains("for 3 s"), "{err}");
+    // Mid-frame, and once its work is done (before the job's last barrier).
+    for (how, expect) in [("stop@3", "for 3 s"), ("hang@2", "within 3 s")] {
+        let job = mpirun(4, SHARED, &args, &[("DCRT_TEST_FAIL", how)], 30);
+        let err = stderr(&job.out);
+        assert!(!job.out.status.success(), "{how}: the job succeeded: {err}");
+        assert!(
+            job.elapsed < Duration::from_secs(10),
+            "{how}: the job took {:?}: {err}",
+            job.elapsed
+        );
+        assert!(err.contains(expect), "{how}: {err}");
+    }
 }
