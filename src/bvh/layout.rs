@@ -129,11 +129,47 @@ mod tests {
         (0..3).all(|a| outer.min[a] <= inner.min[a] && inner.max[a] <= outer.max[a])
     }
 
+    /// A soup with groups of identical triangles among its own: 20,000 copies of one, 100 of
+    /// another, interleaved with the rest.
+    fn soup_with_coincident(n: usize) -> Model {
+        let mut tris = soup(n).triangles;
+        let (a, b) = (tris[0], tris[1]);
+        for i in 0..20_000 {
+            tris.insert((i * 7) % tris.len(), a);
+            if i < 100 {
+                tris.push(b);
+            }
+        }
+        Model::from_triangles(tris)
+    }
+
     #[test]
     fn layout_is_a_valid_tree_over_every_triangle() {
         for (n, b) in [(1, 256), (2, 256), (1000, 256), (5000, 16), (20000, 256)] {
-            let model = soup(n);
-            let bvh = Bvh::build(&model, Preset::Fast, b);
+            check_tree(&soup(n), b);
+        }
+    }
+
+    /// Coincident triangles cannot be split apart: they end up in a balanced tree by index, in
+    /// near-linear time, instead of a chain as deep as the group is large.
+    #[test]
+    fn coincident_triangles_make_a_shallow_tree() {
+        let model = soup_with_coincident(3000);
+        let t = std::time::Instant::now();
+        let bvh = check_tree(&model, 256);
+        assert!(bvh.depth <= 40, "depth {}", bvh.depth);
+        assert!(t.elapsed().as_secs() < 10, "{:?}", t.elapsed());
+        let same = Model::from_triangles(vec![model.triangles[0]; 20_000]);
+        let bvh = check_tree(&same, 256);
+        assert!(bvh.depth <= 16, "depth {}", bvh.depth);
+    }
+
+    /// Walks the tree of `model`: every triangle once, every node reached once, pairs even and
+    /// inside their parent, leaf ranges covering the triangle list in order, the depth as said.
+    fn check_tree(model: &Model, b: usize) -> Bvh {
+        {
+            let n = model.triangles.len();
+            let bvh = Bvh::build(model, Preset::Fast, b);
             let mut seen = vec![false; n];
             for &p in &bvh.prim_ids {
                 assert!(!seen[p as usize], "primitive {p} twice");
@@ -169,6 +205,7 @@ mod tests {
             assert_eq!(depth, bvh.depth);
             assert_eq!(reached[1], 0, "pad node is never referenced");
             assert!(reached.iter().enumerate().all(|(i, &r)| r == 1 || i == 1));
+            bvh
         }
     }
 

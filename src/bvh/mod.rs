@@ -2,6 +2,7 @@
 //! layout (docs/ARCHITECTURE.md, BVH and blocks; chapter 5.3.1), with triangles reordered in
 //! BVH in-order (chapter 5.3.2).
 
+mod coincident;
 pub mod layout;
 
 use crate::scene::Model;
@@ -89,7 +90,15 @@ impl Bvh {
             })
             .collect();
         let mut core = Duration::ZERO;
-        let bvh2 = obvhs::bvh2::builder::build_bvh2(&aabbs, preset.params(), &mut core);
+        let bvh2 = match coincident::find(&aabbs) {
+            None => obvhs::bvh2::builder::build_bvh2(&aabbs, preset.params(), &mut core),
+            Some(groups) => {
+                let kept: Vec<Aabb> = groups.kept.iter().map(|&p| aabbs[p as usize]).collect();
+                let mut b = obvhs::bvh2::builder::build_bvh2(&kept, preset.params(), &mut core);
+                groups.restore(&mut b, &aabbs);
+                b
+            }
+        };
         drop(aabbs);
         let build_time = t0.elapsed();
         let t1 = Instant::now();

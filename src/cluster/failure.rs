@@ -1,11 +1,15 @@
 //! Failure injection for the tests of what a dying rank does to the job: `DCRT_TEST_FAIL` set to
-//! `panic@R` or `kill@R` makes rank R panic, or kill itself with SIGKILL, when it starts tracing
-//! in its first frame (mid-frame for the others). Anything else in the variable does nothing.
+//! `panic@R`, `kill@R` or `stop@R` makes rank R panic, kill itself with SIGKILL, or stop itself
+//! with SIGSTOP (a hung rank), when it starts tracing in its first frame (mid-frame for the
+//! others); `hang@R` stops rank R once its work is done, before the job's last barrier.
+//! Anything else in the variable does nothing.
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum How {
     Panic,
     Kill,
+    Stop,
+    Hang,
 }
 
 /// What this rank is to do, read from the environment once at start-up.
@@ -24,6 +28,8 @@ impl Failure {
             .and_then(|(what, _)| match what {
                 "panic" => Some(How::Panic),
                 "kill" => Some(How::Kill),
+                "stop" => Some(How::Stop),
+                "hang" => Some(How::Hang),
                 _ => None,
             });
         Failure(how)
@@ -35,15 +41,27 @@ impl Failure {
             return;
         }
         match self.0 {
-            None => {}
+            None | Some(How::Hang) => {}
             Some(How::Panic) => panic!("DCRT_TEST_FAIL: rank {rank} panics mid-frame"),
-            Some(How::Kill) => {
-                let _ = std::process::Command::new("kill")
-                    .args(["-9", &std::process::id().to_string()])
-                    .status();
-            }
+            Some(How::Kill) => signal_self("-KILL"),
+            Some(How::Stop) => signal_self("-STOP"),
         }
     }
+}
+
+impl Failure {
+    /// Called by every rank once its role is done, before the job's last barrier.
+    pub fn at_end(self) {
+        if self.0 == Some(How::Hang) {
+            signal_self("-STOP");
+        }
+    }
+}
+
+fn signal_self(signal: &str) {
+    let _ = std::process::Command::new("kill")
+        .args([signal, &std::process::id().to_string()])
+        .status();
 }
 
 #[cfg(test)]
@@ -57,6 +75,8 @@ mod tests {
             Failure(Some(How::Panic))
         );
         assert_eq!(Failure::parse(Some("kill@2"), 2), Failure(Some(How::Kill)));
+        assert_eq!(Failure::parse(Some("stop@4"), 4), Failure(Some(How::Stop)));
+        assert_eq!(Failure::parse(Some("hang@2"), 2), Failure(Some(How::Hang)));
         assert_eq!(Failure::parse(Some("panic@3"), 2), Failure::default());
         assert_eq!(Failure::parse(Some("burn@3"), 3), Failure::default());
         assert_eq!(Failure::parse(Some("panic"), 3), Failure::default());

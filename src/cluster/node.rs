@@ -1,12 +1,15 @@
 //! One process of a cluster job: MPI set-up, start-up and agreement, then its role until the end
 //! (docs/ARCHITECTURE.md, Cluster). Only the main thread calls MPI (`Threading::Funneled`).
 
+use super::failure::Failure;
 use super::startup::{self, Role};
 use super::{Options, Roles, coordinator, render_rank, rma};
 use crate::error::{Error, Result};
 use mpi::Threading;
 use mpi::topology::Color;
+use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
+use std::time::{Duration, Instant};
 
 pub fn run(opts: &Options) -> Result<()> {
     let (universe, _) = mpi::initialize_with_threading(Threading::Funneled)
@@ -42,6 +45,29 @@ pub fn run(opts: &Options) -> Result<()> {
         eprintln!("rank {rank}: error: {e}");
         rma::abort_world(1);
     }
-    world.barrier();
+    Failure::from_env(rank).at_end();
+    last_barrier(&world, rank, opts.timeout);
     Ok(())
+}
+
+/// The job's last barrier, bounded by the timeout like every other wait: a rank that hangs
+/// after its work would otherwise keep every other rank in a blocking barrier for ever.
+fn last_barrier(world: &SimpleCommunicator, rank: u32, timeout: Duration) {
+    let start = Instant::now();
+    let mut request = world.immediate_barrier();
+    loop {
+        request = match request.test() {
+            Ok(_) => return,
+            Err(r) => r,
+        };
+        if start.elapsed() > timeout {
+            eprintln!(
+                "rank {rank}: error: not every rank reached the end of the job within {} s: a \
+                 rank has hung or died",
+                timeout.as_secs_f64()
+            );
+            rma::abort_world(1);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }

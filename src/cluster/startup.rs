@@ -7,8 +7,10 @@ use crate::dc::{CacheMap, CacheSize, Ranks};
 use crate::error::Result;
 use crate::gpu::Gpu;
 use crate::gpu::tracer::Settings;
-use crate::render::Loaded;
+use crate::render::{ImageOf, Loaded};
 use crate::scene::check_image_size;
+use crate::shading::{Mode, Shading};
+use clap::ValueEnum;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 
@@ -22,7 +24,8 @@ pub struct Image {
 /// What a rank opened before the agreement.
 pub struct Opened {
     pub image: Image,
-    fingerprint: u64,
+    /// What every rank must agree on, as `Report` words.
+    report: Report,
     pub role: Role,
 }
 
@@ -41,6 +44,53 @@ pub struct RenderSetup {
     pub settings: Settings,
 }
 
+/// What one rank reports for the agreement: everything that shapes the image, as words (hashes
+/// where the value is large). The model's words, from `FINGERPRINT` on, are compared between
+/// render ranks only (the display and the balancer do not read the model).
+type Report = [u32; WORDS];
+const WORDS: usize = 13;
+const OPENED: usize = 0;
+/// Width, height, frames.
+const SIZE: std::ops::Range<usize> = 1..4;
+/// Mode (its index among `Mode`'s values), samples per pixel, seed.
+const MODE: usize = 4;
+const SPP: usize = 5;
+const SEED: usize = 6;
+/// A hash of the whole of the shading settings (lights, rays, depths, sky, offsets...).
+const SHADING: usize = 7;
+/// A hash of what the display applies: exposure, background, AOVs, the display benchmark.
+const DISPLAY: usize = 8;
+/// The block fingerprint's low and high words, then hashes of the camera and of the mesh table.
+const FINGERPRINT: std::ops::Range<usize> = 9..11;
+const CAMERA: usize = 11;
+const MESHES: usize = 12;
+
+/// A stable hash of a value's `Debug` form (every rank runs the same build: floats print the same).
+fn digest(v: &impl std::fmt::Debug) -> u32 {
+    crc32fast::hash(format!("{v:?}").as_bytes())
+}
+
+fn report(opts: &Options, image: Image, shading: &Shading, of: &ImageOf) -> Report {
+    let mut r = [0; WORDS];
+    r[OPENED] = 1;
+    r[SIZE].copy_from_slice(&[image.width, image.height, opts.frames]);
+    r[MODE] = Mode::value_variants()
+        .iter()
+        .position(|m| *m == shading.mode)
+        .unwrap_or(usize::MAX) as u32;
+    r[SPP] = shading.spp;
+    r[SEED] = shading.seed;
+    r[SHADING] = digest(shading);
+    r[DISPLAY] = digest(&(
+        opts.exposure.to_bits(),
+        of.background.map(f32::to_bits),
+        &opts.aovs,
+        opts.exr.is_some(),
+        opts.display_bench,
+    ));
+    r
+}
+
 /// Opens this rank's input and agrees with the others. `None`: the job must stop, and what is
 /// wrong has been said.
 pub fn start(
@@ -56,17 +106,10 @@ pub fn start(
         eprintln!("error: rank {rank}: {e}");
     }
     let check = match &opened {
-        Ok(o) => [
-            1,
-            o.image.width,
-            o.image.height,
-            opts.frames,
-            o.fingerprint as u32,
-            (o.fingerprint >> 32) as u32,
-        ],
-        Err(_) => [0; 6],
+        Ok(o) => o.report,
+        Err(_) => [0; WORDS],
     };
-    let mut all = vec![[0u32; 6]; roles.size as usize];
+    let mut all = vec![[0u32; WORDS]; roles.size as usize];
     world.all_gather_into(&check[..], bytemuck::cast_slice_mut::<_, u32>(&mut all[..]));
     let opened = opened.ok()?;
     if let Some((concerned, problem)) = disagreement(&all, roles) {
@@ -85,13 +128,17 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
         height: opts.height.unwrap_or(of.height),
     };
     check_image_size(image.width, image.height)?;
+    if rank == Roles::DISPLAY {
+        crate::render::memory::check_image(image.width, image.height)?;
+    }
     // Applied here, after the scene is read, so that a rank that cannot read it still takes
     // part in the agreement.
     let shading = opts.shade.apply(of.shading)?;
+    let mut report = report(opts, image, &shading, &of);
     let Some(index) = roles.render_index(rank) else {
         return Ok(Opened {
             image,
-            fingerprint: 0,
+            report,
             role: Role::Coordinator,
         });
     };
@@ -109,9 +156,13 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             Some((ranks, loaded.resident(ranks)?, size, map))
         }
     };
+    let fingerprint = loaded.fingerprint();
+    report[FINGERPRINT].copy_from_slice(&[fingerprint as u32, (fingerprint >> 32) as u32]);
+    report[CAMERA] = digest(&loaded.camera);
+    report[MESHES] = digest(&(&loaded.meshes, loaded.depth, loaded.triangles));
     Ok(Opened {
         image,
-        fingerprint: loaded.fingerprint(),
+        report,
         role: Role::Render(Box::new(RenderSetup {
             loaded,
             gpu,
@@ -124,10 +175,10 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     })
 }
 
-/// The first problem in what the ranks reported (opened, width, height, frames, fingerprint low
-/// and high words), and the rank it concerns (`u32::MAX`: the failed rank spoke for itself).
-fn disagreement(all: &[[u32; 6]], roles: Roles) -> Option<(u32, String)> {
-    if let Some(r) = all.iter().position(|c| c[0] == 0) {
+/// The first problem in what the ranks reported (`Report`), and the rank it concerns
+/// (`u32::MAX`: the failed rank spoke for itself).
+fn disagreement(all: &[Report], roles: Roles) -> Option<(u32, String)> {
+    if let Some(r) = all.iter().position(|c| c[OPENED] == 0) {
         return Some((
             u32::MAX,
             format!(
@@ -135,25 +186,83 @@ fn disagreement(all: &[[u32; 6]], roles: Roles) -> Option<(u32, String)> {
             ),
         ));
     }
+    const SAME: &str = "every rank must be given the same input and options";
     let first = roles.first_render() as usize;
+    let mode = |c: &Report| {
+        Mode::value_variants()
+            .get(c[MODE] as usize)
+            .map_or("?", |m| m.name())
+    };
     for (r, c) in all.iter().enumerate() {
-        if c[1..4] != all[0][1..4] {
+        let z = &all[0];
+        if c[SIZE] != z[SIZE] {
             return Some((
                 r as u32,
                 format!(
-                    "rank {r} has a {}x{} image of {} frames, rank 0 {}x{} of {}: every rank must \
-                     be given the same input and options",
-                    c[1], c[2], c[3], all[0][1], all[0][2], all[0][3]
+                    "rank {r} has a {}x{} image of {} frames, rank 0 {}x{} of {}: {SAME}",
+                    c[1], c[2], c[3], z[1], z[2], z[3]
                 ),
             ));
         }
-        if r > first && c[4..] != all[first][4..] {
+        if c[MODE..=SEED] != z[MODE..=SEED] {
+            return Some((
+                r as u32,
+                format!(
+                    "rank {r} renders --mode {} --spp {} --seed {}, rank 0 --mode {} --spp {} \
+                     --seed {}: {SAME}",
+                    mode(c),
+                    c[SPP],
+                    c[SEED],
+                    mode(z),
+                    z[SPP],
+                    z[SEED]
+                ),
+            ));
+        }
+        if c[SHADING] != z[SHADING] {
+            return Some((
+                r as u32,
+                format!(
+                    "rank {r}'s shading settings (lights, rays, depths, sky, sun) differ from \
+                     rank 0's: {SAME}"
+                ),
+            ));
+        }
+        if c[DISPLAY] != z[DISPLAY] {
+            return Some((
+                r as u32,
+                format!("rank {r}'s exposure, background or AOVs differ from rank 0's: {SAME}"),
+            ));
+        }
+        if r <= first {
+            continue;
+        }
+        let f = &all[first];
+        if c[FINGERPRINT] != f[FINGERPRINT] {
             return Some((
                 r as u32,
                 format!(
                     "rank {r}'s model differs from rank {first}'s (block fingerprints \
                      {:08x}{:08x} and {:08x}{:08x}): every rank must read the same model",
-                    c[5], c[4], all[first][5], all[first][4]
+                    c[10], c[9], f[10], f[9]
+                ),
+            ));
+        }
+        if c[CAMERA] != f[CAMERA] {
+            return Some((
+                r as u32,
+                format!(
+                    "rank {r}'s camera differs from rank {first}'s (the same blocks seen from \
+                     another view): every rank must read the same model and scene"
+                ),
+            ));
+        }
+        if c[MESHES] != f[MESHES] {
+            return Some((
+                r as u32,
+                format!(
+                    "rank {r}'s mesh table (colours, depth, triangles) differs from rank \
+                     {first}'s: every rank must read the same model"
                 ),
             ));
         }
@@ -165,26 +274,69 @@ fn disagreement(all: &[[u32; 6]], roles: Roles) -> Option<(u32, String)> {
 mod tests {
     use super::*;
 
+    fn words(size: [u32; 3], mode: u32, rest: [u32; 4], model: [u32; 4]) -> Report {
+        let mut r = [0; WORDS];
+        r[OPENED] = 1;
+        r[SIZE].copy_from_slice(&size);
+        r[MODE] = mode;
+        r[SPP..=DISPLAY].copy_from_slice(&rest);
+        r[FINGERPRINT.start..].copy_from_slice(&model);
+        r
+    }
+
     #[test]
     fn the_rank_that_differs_is_named() {
         let roles = Roles::new(4).unwrap();
-        let ok = [1, 64, 48, 2, 0xaa, 0xbb];
-        let coord = [1, 64, 48, 2, 0, 0];
+        let size = [64, 48, 2];
+        let rest = [1, 0, 7, 9];
+        let ok = words(size, 0, rest, [0xaa, 0xbb, 3, 4]);
+        let coord = words(size, 0, rest, [0; 4]);
         assert_eq!(disagreement(&[coord, coord, ok, ok], roles), None);
-        let (r, m) = disagreement(&[coord, coord, ok, [0; 6]], roles).unwrap();
+        let (r, m) = disagreement(&[coord, coord, ok, [0; WORDS]], roles).unwrap();
         assert_eq!(r, u32::MAX);
         assert!(m.starts_with("rank 3 could not open its input"), "{m}");
-        let (r, m) = disagreement(&[coord, coord, ok, [1, 64, 40, 2, 0xaa, 0xbb]], roles).unwrap();
-        assert_eq!(r, 3);
-        assert!(
-            m.starts_with("rank 3 has a 64x40 image of 2 frames, rank 0 64x48"),
-            "{m}"
-        );
-        let (r, m) = disagreement(&[coord, coord, ok, [1, 64, 48, 2, 0xab, 0xbb]], roles).unwrap();
-        assert_eq!(r, 3);
-        assert!(
-            m.contains("rank 3's model differs from rank 2's (block fingerprints 000000bb000000ab"),
-            "{m}"
-        );
+        let cases = [
+            (
+                words([64, 40, 2], 0, rest, [0xaa, 0xbb, 3, 4]),
+                "rank 3 has a 64x40 image of 2 frames, rank 0 64x48",
+            ),
+            (
+                words(size, 2, rest, [0xaa, 0xbb, 3, 4]),
+                "rank 3 renders --mode ao --spp 1 --seed 0, rank 0 --mode cast --spp 1 --seed 0",
+            ),
+            (
+                words(size, 0, [4, 0, 7, 9], [0xaa, 0xbb, 3, 4]),
+                "rank 3 renders --mode cast --spp 4",
+            ),
+            (
+                words(size, 0, [1, 0, 8, 9], [0xaa, 0xbb, 3, 4]),
+                "rank 3's shading settings",
+            ),
+            (
+                words(size, 0, [1, 0, 7, 1], [0xaa, 0xbb, 3, 4]),
+                "rank 3's exposure, background or AOVs",
+            ),
+            (
+                words(size, 0, rest, [0xab, 0xbb, 3, 4]),
+                "rank 3's model differs from rank 2's (block fingerprints 000000bb000000ab",
+            ),
+            (
+                words(size, 0, rest, [0xaa, 0xbb, 5, 4]),
+                "rank 3's camera differs from rank 2's",
+            ),
+            (
+                words(size, 0, rest, [0xaa, 0xbb, 3, 5]),
+                "rank 3's mesh table",
+            ),
+        ];
+        for (bad, expect) in cases {
+            let (r, m) = disagreement(&[coord, coord, ok, bad], roles).unwrap();
+            assert_eq!(r, 3);
+            assert!(m.starts_with(expect), "{m}");
+        }
+        // The display and the balancer have no model: theirs is not compared.
+        let (r, m) = disagreement(&[coord, words(size, 3, rest, [0; 4]), ok, ok], roles).unwrap();
+        assert_eq!(r, 1);
+        assert!(m.starts_with("rank 1 renders --mode path"), "{m}");
     }
 }

@@ -157,6 +157,7 @@ pub fn run_images(
             }
         }
     }
+    super::memory::check_image(width, height)?;
     let mut images = Images {
         size: (width, height, background),
         image: None,

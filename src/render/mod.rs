@@ -2,6 +2,7 @@
 //! file → GPU frame; `frames` is the loop over a sequence of frames.
 
 pub mod frames;
+pub mod memory;
 
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
@@ -25,6 +26,7 @@ pub struct Prepared {
 
 impl Prepared {
     pub fn new(scene: &Scene, preset: Preset, format: Format) -> Result<Prepared> {
+        memory::check_generators(scene)?;
         let t = Instant::now();
         let model = scene.load_model()?;
         let load_seconds = t.elapsed().as_secs_f64();

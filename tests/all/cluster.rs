@@ -547,3 +547,76 @@ fn shading_modes_under_mpirun_match_one_process() {
         assert!(b != cast, "{mode}: the mode was not applied");
     }
 }
+
+/// MPMD: the last rank is given the same blocks seen from another camera, or another shading
+/// mode: ranks agree on everything that shapes the image, so that rank is named and no
+/// patchwork of two images is written.
+#[test]
+fn a_different_camera_or_mode_on_one_rank_stops_every_rank() {
+    let fx = Fixture::new("cl-agree");
+    let cam_scene = fx.dir.write(
+        "cam.toml",
+        format!(
+            "[image]\nwidth = {W}\nheight = {H}\n[camera]\nposition = [0, -2.2, 1.8]\n\
+             focal_point = [0, 0, 0]\nview_up = [0, 0, 1]\nview_angle = 40\n\n[[mesh]]\n\
+             generator = \"rm\"\ntriangles = 40000\n"
+        ),
+    );
+    let cam = fx.dir.path("cam.dcb");
+    let out = dcrt(&[&"prepare", &cam_scene, &"-o", &cam]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let png = fx.dir.path("agree.png");
+    let good = fx.dcb.to_str().unwrap();
+    let cases: [(&str, &[&str], &str); 2] = [
+        (
+            cam.to_str().unwrap(),
+            &[],
+            "rank 3's camera differs from rank 2's",
+        ),
+        (good, &["--mode", "ao"], "rank 3 renders --mode ao"),
+    ];
+    for (last, extra, expect) in cases {
+        let mut args = vec!["render", good, "-o", png.to_str().unwrap()];
+        args.extend([":", "-n", "1", dcrt_bin(), "render", last, "-o"]);
+        args.push(png.to_str().unwrap());
+        args.extend(extra);
+        let job = mpirun(3, SHARED, &args, &[], 60);
+        job.assert_ended_within(60, expect);
+        let err = stderr(&job.out);
+        assert!(!job.out.status.success(), "{expect}: {err}");
+        assert!(err.contains(expect), "{expect}: {err}");
+        assert!(!exists(&png), "{expect}: an image was written");
+    }
+}
+
+/// A render rank that stops (SIGSTOP: hung, not dead) mid-frame, or once its work is done:
+/// with `--timeout 3` the job ends with an error within 10 s.
+#[test]
+fn a_hung_rank_ends_the_job_within_its_timeout() {
+    let fx = Fixture::new("cl-hung");
+    let png = fx.dir.path("hung.png");
+    let args = [
+        "render",
+        fx.dcb.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+        "--cache",
+        "1/8",
+        "--frames",
+        "3",
+        "--timeout",
+        "3",
+    ];
+    // Mid-frame, and once its work is done (before the job's last barrier).
+    for (how, expect) in [("stop@3", "for 3 s"), ("hang@2", "within 3 s")] {
+        let job = mpirun(4, SHARED, &args, &[("DCRT_TEST_FAIL", how)], 30);
+        let err = stderr(&job.out);
+        assert!(!job.out.status.success(), "{how}: the job succeeded: {err}");
+        assert!(
+            job.elapsed < Duration::from_secs(10),
+            "{how}: the job took {:?}: {err}",
+            job.elapsed
+        );
+        assert!(err.contains(expect), "{how}: {err}");
+    }
+}

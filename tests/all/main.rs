@@ -9,6 +9,7 @@ mod dc;
 mod frames;
 mod gpu_vs_cpu;
 mod layout;
+mod limits;
 mod mirror;
 mod outputs;
 mod robust;

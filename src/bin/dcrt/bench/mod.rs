@@ -14,6 +14,7 @@ use dcrt::blocks::Format;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{FrameStats, Tracer};
 use dcrt::render::frames::{FramePlan, Role, View, run_images};
+use dcrt::scene::MAX_GENERATED_TRIANGLES;
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 
@@ -22,6 +23,12 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         bail!("--runs must be at least 1");
     }
     check_image_size(a.width, a.height)?;
+    if !(1..=MAX_GENERATED_TRIANGLES).contains(&a.triangles) {
+        bail!(
+            "--triangles must be between 1 and {MAX_GENERATED_TRIANGLES}, got {}",
+            a.triangles
+        );
+    }
     check_budget(a.gpu.step_budget)?;
     if a.shading {
         if a.max_spp == 0 {
@@ -60,6 +67,7 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     if a.cluster {
         return cluster::run(&a, format);
     }
+    dcrt::render::memory::check_generators(&scene)?;
     let model = scene.load_model()?;
     let camera = scene.camera_or_default(&model);
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
