@@ -6,6 +6,7 @@ mod checks;
 mod info;
 mod prepare;
 mod render;
+mod trace;
 
 use anyhow::{Result, bail};
 use clap::{Args, Parser, Subcommand};
@@ -45,6 +46,8 @@ enum Command {
     Prepare(PrepareArgs),
     /// Measure BVH build time and primary-ray throughput.
     Bench(BenchArgs),
+    /// Read trace directories: summary, Perfetto timeline, plot.
+    Trace(trace::TraceArgs),
 }
 
 #[derive(Args)]
@@ -318,6 +321,7 @@ fn main() -> ExitCode {
         Command::Info { adapter } => info::info(adapter.as_deref()),
         Command::Prepare(a) => prepare::prepare(a),
         Command::Bench(a) => bench::bench(a),
+        Command::Trace(a) => trace::trace(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
