@@ -13,4 +13,5 @@ mod mirror;
 mod robust;
 mod shaders;
 mod shading;
+mod tools;
 mod trace_loop;
