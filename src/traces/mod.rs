@@ -6,6 +6,7 @@
 pub mod perfetto;
 pub mod plot;
 pub mod read;
+pub mod simulate;
 pub mod summary;
 
 pub use read::{RankFrame, Traces};

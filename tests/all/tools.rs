@@ -225,7 +225,7 @@ fn bad_trace_directories_name_the_file_and_line() {
     assert_eq!(Summary::of(&Traces::read(&old).unwrap()).version, 0);
 }
 
-fn mpirun_traces(k: u32, d: &TempDir) -> std::path::PathBuf {
+fn mpirun_traces(k: u32, frames: u32, d: &TempDir) -> std::path::PathBuf {
     let scene = d.write(
         "rm.toml",
         "[image]\nwidth = 72\nheight = 56\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 20000\n",
@@ -244,7 +244,7 @@ fn mpirun_traces(k: u32, d: &TempDir) -> std::path::PathBuf {
         .arg("--trace")
         .arg(&traces)
         .args(["--cache", "1/8", "--tile", "32", "--min-tile", "8"])
-        .args(["--frames", "2"])
+        .args(["--frames", &frames.to_string()])
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .output()
@@ -260,7 +260,7 @@ fn mpirun_traces(k: u32, d: &TempDir) -> std::path::PathBuf {
 #[test]
 fn cluster_perfetto_has_a_process_per_rank_and_every_kind_of_span() {
     let d = TempDir::new("tools-perfetto");
-    let traces = mpirun_traces(4, &d);
+    let traces = mpirun_traces(4, 2, &d);
     let out = d.path("p.json");
     ok(&[&"trace", &"perfetto", &traces, &"-o", &out]);
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
@@ -358,4 +358,29 @@ fn cluster_perfetto_has_a_process_per_rank_and_every_kind_of_span() {
             assert!(tile.start_ms + tile.trace_ms <= complete + 20.0, "rank {r}");
         }
     }
+}
+
+/// The simulator replays a 4-rank run at 4 ranks: its mean frame interval within 25% of the
+/// display's (about 2% here; the margin is for a loaded 2-core machine), and more render ranks
+/// predict shorter frames.
+#[test]
+fn cluster_simulate_predicts_its_own_run() {
+    let d = TempDir::new("tools-sim");
+    let traces = mpirun_traces(4, 8, &d);
+    let run = |k: &str| -> Value {
+        serde_json::from_str(&ok(&[&"simulate", &traces, &"--ranks", &k, &"--json"])).unwrap()
+    };
+    let own = run("4");
+    let (p, m) = (
+        own["mean_frame_ms"].as_f64().unwrap(),
+        own["measured_mean_frame_ms"].as_f64().unwrap(),
+    );
+    assert!(
+        (p - m).abs() <= 0.25 * m,
+        "predicted {p} ms, measured {m} ms"
+    );
+    assert_eq!(own["frames"].as_array().unwrap().len(), 8);
+    let more = run("6")["mean_frame_ms"].as_f64().unwrap();
+    assert!(more < p, "6 ranks {more} ms, 4 ranks {p} ms");
+    assert!(run("6")["measured_mean_frame_ms"].is_null());
 }

@@ -6,6 +6,7 @@ mod checks;
 mod info;
 mod prepare;
 mod render;
+mod simulate;
 mod trace;
 
 use anyhow::{Result, bail};
@@ -48,6 +49,8 @@ enum Command {
     Bench(BenchArgs),
     /// Read trace directories: summary, Perfetto timeline, plot.
     Trace(trace::TraceArgs),
+    /// Predict frame times at K ranks from a cluster run's traces.
+    Simulate(simulate::SimulateArgs),
 }
 
 #[derive(Args)]
@@ -322,6 +325,7 @@ fn main() -> ExitCode {
         Command::Prepare(a) => prepare::prepare(a),
         Command::Bench(a) => bench::bench(a),
         Command::Trace(a) => trace::trace(a),
+        Command::Simulate(a) => simulate::simulate(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
