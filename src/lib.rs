@@ -18,5 +18,6 @@ pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod shading;
+pub mod traces;
 
 pub use error::{Error, Result};

@@ -42,7 +42,7 @@ impl Balancer {
             asked: vec![None; n],
             ended: vec![0; n],
             events: BTreeMap::new(),
-            start: Instant::now(),
+            start: super::clock::epoch(),
         }
     }
 

@@ -77,7 +77,7 @@ impl<'a> Display<'a> {
             frames: BTreeMap::new(),
             written: 0,
             writers: Vec::new(),
-            start: Instant::now(),
+            start: super::clock::epoch(),
             shown: Vec::new(),
             report: Vec::new(),
         }

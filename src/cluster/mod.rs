@@ -17,6 +17,8 @@ pub mod schedule;
 #[cfg(feature = "mpi")]
 mod balancer;
 #[cfg(feature = "mpi")]
+mod clock;
+#[cfg(feature = "mpi")]
 mod coordinator;
 #[cfg(feature = "mpi")]
 mod display;

@@ -3,7 +3,7 @@
 
 use super::failure::Failure;
 use super::startup::{self, Role};
-use super::{Options, Roles, coordinator, render_rank, rma};
+use super::{Options, Roles, clock, coordinator, render_rank, rma};
 use crate::error::{Error, Result};
 use mpi::Threading;
 use mpi::topology::Color;
@@ -36,6 +36,8 @@ pub fn run(opts: &Options) -> Result<()> {
         None => Color::undefined(),
     };
     let render_comm = world.split_by_color(color);
+    // Trace times count from one barrier on every rank, so that tools can line the ranks up.
+    clock::agree(&world);
     let result = match (opened.role, render_comm) {
         (Role::Render(r), Some(comm)) => render_rank::run(&world, &comm, roles, rank, opts, *r),
         (Role::Coordinator, _) => coordinator::run(&world, roles, rank, opts, opened.image),

@@ -129,7 +129,7 @@ pub fn run(
         ),
         background: loaded.background,
         packer: Packer::new(wire, opts.message_bytes, opts.exposure),
-        start: Instant::now(),
+        start: super::clock::epoch(),
         kept: BTreeMap::new(),
         failure: Failure::from_env(rank),
         sent: Sent::default(),

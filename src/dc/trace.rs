@@ -5,6 +5,50 @@ use crate::error::{Error, Result};
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The version of the record schema (docs/ARCHITECTURE.md, Trace records), written in every
+/// `frame` record. Files without it are version 0: the same records, no `run`.
+pub const VERSION: u32 = 1;
+
+/// What every trace file of one run shares: which run it is, so that traces of different runs
+/// in one directory are told apart, and on a cluster the `MPI_Wtime` at the common epoch.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Run {
+    pub run: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub epoch_wtime: Option<f64>,
+}
+
+static RUN: OnceLock<Run> = OnceLock::new();
+
+/// Sets the run of this process's traces (a cluster sets the job's, agreed at start-up); the
+/// first call wins. Without a call a process is a run of its own.
+pub fn set_run(run: Run) {
+    let _ = RUN.set(run);
+}
+
+/// This process's run.
+pub fn run() -> &'static Run {
+    RUN.get_or_init(|| Run {
+        run: local_run_id(),
+        epoch_wtime: None,
+    })
+}
+
+/// A run id from the wall clock and the process id: distinct for runs that do not share a
+/// process and a nanosecond.
+pub fn local_run_id() -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    run_id(nanos, std::process::id())
+}
+
+pub fn run_id(nanos: u64, pid: u32) -> String {
+    format!("{nanos:016x}-{pid}")
+}
 
 /// A block that faulted in a round.
 #[derive(Clone, Debug, Serialize, PartialEq)]
@@ -76,7 +120,16 @@ pub struct FrameTrace {
 #[serde(tag = "type", rename_all = "lowercase")]
 enum Record<'a> {
     Round(&'a Round),
-    Frame(&'a Summary),
+    Frame(FrameRecord<'a>),
+}
+
+#[derive(Serialize)]
+struct FrameRecord<'a> {
+    version: u32,
+    #[serde(flatten)]
+    run: &'a Run,
+    #[serde(flatten)]
+    summary: &'a Summary,
 }
 
 impl FrameTrace {
@@ -85,7 +138,7 @@ impl FrameTrace {
     }
 
     /// Writes one JSON object per line: every round (`"type": "round"`), the cluster events,
-    /// then the frame (`"type": "frame"`).
+    /// then the frame (`"type": "frame"`, with the schema `version` and the `run`).
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
         let io = |e| Error::io(&path, e);
@@ -99,7 +152,12 @@ impl FrameTrace {
             serde_json::to_writer(&mut w, e).map_err(|e| Error::Invalid(e.to_string()))?;
             w.write_all(b"\n").map_err(io)?;
         }
-        serde_json::to_writer(&mut w, &Record::Frame(&self.summary))
+        let frame = FrameRecord {
+            version: VERSION,
+            run: run(),
+            summary: &self.summary,
+        };
+        serde_json::to_writer(&mut w, &Record::Frame(frame))
             .map_err(|e| Error::Invalid(e.to_string()))?;
         w.write_all(b"\n").map_err(io)?;
         w.flush().map_err(io)?;

@@ -16,4 +16,5 @@ mod robust;
 mod scale;
 mod shaders;
 mod shading;
+mod tools;
 mod trace_loop;

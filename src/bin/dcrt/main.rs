@@ -6,6 +6,8 @@ mod checks;
 mod info;
 mod prepare;
 mod render;
+mod simulate;
+mod trace;
 
 use anyhow::{Result, bail};
 use clap::{Args, Parser, Subcommand};
@@ -45,6 +47,10 @@ enum Command {
     Prepare(PrepareArgs),
     /// Measure BVH build time and primary-ray throughput.
     Bench(BenchArgs),
+    /// Read trace directories: summary, Perfetto timeline, plot.
+    Trace(trace::TraceArgs),
+    /// Predict frame times at K ranks from a cluster run's traces.
+    Simulate(simulate::SimulateArgs),
 }
 
 #[derive(Args)]
@@ -327,6 +333,8 @@ fn main() -> ExitCode {
         Command::Info { adapter } => info::info(adapter.as_deref()),
         Command::Prepare(a) => prepare::prepare(a),
         Command::Bench(a) => bench::bench(a),
+        Command::Trace(a) => trace::trace(a),
+        Command::Simulate(a) => simulate::simulate(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,68 @@
+//! `dcrt simulate DIR --ranks K`: a cluster run's traces replayed at K ranks.
+
+use anyhow::Result;
+use clap::Args;
+use dcrt::traces::Traces;
+use dcrt::traces::simulate::{Model, simulate as run};
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct SimulateArgs {
+    /// Directory written by `--trace` under mpirun.
+    dir: PathBuf,
+    /// Total MPI ranks to predict for, as `mpirun -n K` (at least 2).
+    #[arg(long)]
+    ranks: u32,
+    /// Block fetch bandwidth in MB/s (10^6 bytes); default: the measured fetch times.
+    #[arg(long)]
+    bandwidth: Option<f64>,
+    /// Latency of a fault round's fetch in microseconds; default: the measured fetch times.
+    #[arg(long)]
+    latency: Option<f64>,
+    /// The run's `--tile` and `--min-tile`.
+    #[arg(long, default_value_t = 128)]
+    tile: u32,
+    #[arg(long, default_value_t = 16)]
+    min_tile: u32,
+    /// One JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn simulate(a: SimulateArgs) -> Result<()> {
+    let t = Traces::read(&a.dir)?;
+    let p = run(
+        &t,
+        &Model {
+            ranks: a.ranks,
+            bandwidth: a.bandwidth.map(|b| b * 1e6),
+            latency: a.latency.map(|l| l * 1e-6),
+            tile: a.tile,
+            min_tile: a.min_tile,
+        },
+    )?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&p)?);
+        return Ok(());
+    }
+    println!(
+        "{} ranks ({} render) from traces of {} ranks",
+        p.ranks, p.render_ranks, p.traced_ranks
+    );
+    println!(
+        "{:>5} {:>12} {:>12} {:>12}",
+        "frame", "complete ms", "frame ms", "measured"
+    );
+    for f in &p.frames {
+        let m = f.measured_ms.map_or("-".into(), |m| format!("{m:.1}"));
+        println!(
+            "{:>5} {:>12.1} {:>12.1} {:>12}",
+            f.frame, f.complete_ms, f.frame_ms, m
+        );
+    }
+    let m = p
+        .measured_mean_frame_ms
+        .map_or(String::new(), |m| format!(" (measured {m:.1})"));
+    println!("mean frame interval {:.1} ms{m}", p.mean_frame_ms);
+    Ok(())
+}

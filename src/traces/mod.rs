@@ -1,0 +1,12 @@
+//! Reading and analysing the per-frame traces that `--trace DIR` writes (docs/ARCHITECTURE.md,
+//! Traces; the records in Contracts, Trace records): `read` loads and checks a directory,
+//! `summary` tabulates it per frame and rank, `perfetto` turns it into a timeline, `plot` into a
+//! PNG.
+
+pub mod perfetto;
+pub mod plot;
+pub mod read;
+pub mod simulate;
+pub mod summary;
+
+pub use read::{RankFrame, Traces};

@@ -1,0 +1,386 @@
+//! The trace tools: `dcrt trace summary` adds up what the frame records say, bad directories
+//! are refused with the file and line, and a cluster run's Perfetto timeline has a process per
+//! rank with spans of every kind. The `cluster_` tests run mpirun (one at a time, see
+//! .config/nextest.toml).
+
+use crate::common::*;
+use dcrt::traces::Traces;
+use dcrt::traces::summary::Summary;
+use serde_json::Value;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::process::Command;
+
+const SCENE: &str = "[camera]\nposition = [0, -2.2, 1.8]\nfocal_point = [0, 0, 0]\n\
+                     view_up = [0, 0, 1]\nview_angle = 40\n[image]\nwidth = 48\nheight = 40\n\
+                     [[mesh]]\ngenerator = \"rm\"\ntriangles = 8000\n";
+
+fn ok(args: &[&dyn AsRef<std::ffi::OsStr>]) -> String {
+    let r = dcrt(args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    String::from_utf8_lossy(&r.stdout).to_string()
+}
+
+/// `dcrt trace summary DIR` fails with one `error:` line containing every piece of `want`.
+fn refused(dir: &Path, want: &[&str]) {
+    let r = dcrt(&[&"trace", &"summary", &dir]);
+    let err = String::from_utf8_lossy(&r.stderr).to_string();
+    assert!(!r.status.success(), "accepted {}: {err}", dir.display());
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(err.starts_with("error: "), "{err}");
+    for w in want {
+        assert!(err.contains(w), "{err} does not name {w}");
+    }
+}
+
+fn lines(path: &Path) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// Three frames as virtual rank 1 of 3 with a small cache: rounds that fault in every frame.
+fn one_process_traces(d: &TempDir) -> std::path::PathBuf {
+    let scene = d.write("s.toml", SCENE);
+    let traces = d.path("traces");
+    let r = dcrt(&[
+        &"render",
+        &scene,
+        &"-o",
+        &d.path("o.png"),
+        &"--frames",
+        &"3",
+        &"--virtual-ranks",
+        &"3",
+        &"--rank",
+        &"1",
+        &"--cache",
+        &"4lines",
+        &"--trace",
+        &traces,
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    traces
+}
+
+#[test]
+fn summary_totals_are_the_frame_records() {
+    let d = TempDir::new("tools-sum");
+    let traces = one_process_traces(&d);
+    let json: Value = serde_json::from_str(&ok(&[&"trace", &"summary", &traces, &"--json"]))
+        .expect("--json prints one object");
+    let mut frames = Vec::new();
+    let mut faults = 0u64;
+    for f in 0..3 {
+        let recs = lines(&traces.join(format!("frame_{f:04}.rank1.jsonl")));
+        faults += recs
+            .iter()
+            .filter(|r| r["type"] == "round")
+            .map(|r| r["faults"].as_array().unwrap().len() as u64)
+            .sum::<u64>();
+        let last = recs.last().unwrap().clone();
+        assert_eq!(last["type"], "frame");
+        assert_eq!(last["version"], 1);
+        frames.push(last);
+    }
+    assert_eq!(json["rows"].as_array().unwrap().len(), 3);
+    let t = &json["totals"];
+    for k in [
+        "rounds",
+        "fault_rounds",
+        "lookups",
+        "hits",
+        "fetched_blocks",
+        "fetched_bytes",
+    ] {
+        let want: u64 = frames.iter().map(|f| f[k].as_u64().unwrap()).sum();
+        assert_eq!(t[k].as_u64().unwrap(), want, "{k}");
+    }
+    assert!(
+        t["fetched_blocks"].as_u64().unwrap() > 0,
+        "the cache fetched"
+    );
+    for k in ["frame_ms", "trace_ms", "fetch_ms", "upload_ms", "shade_ms"] {
+        let want: f64 = frames.iter().map(|f| f[k].as_f64().unwrap()).sum();
+        assert!((t[k].as_f64().unwrap() - want).abs() < 1e-9, "{k}");
+    }
+    assert_eq!(t["faults"].as_u64().unwrap(), faults);
+    let (hits, lookups) = (t["hits"].as_f64().unwrap(), t["lookups"].as_f64().unwrap());
+    assert_eq!(t["hit_rate"].as_f64().unwrap(), hits / lookups);
+    // The table prints the same totals.
+    let table = ok(&[&"trace", &"summary", &traces]);
+    let all = table.lines().last().unwrap();
+    assert!(all.trim_start().starts_with("all"), "{table}");
+    assert!(all.contains(&format!(" {} ", t["fault_rounds"])), "{table}");
+    // One process renders, so every timeline process is rank 1's and the plot is drawn.
+    let t = Traces::read(&traces).unwrap();
+    assert_eq!(Summary::of(&t).ranks, [1]);
+    ok(&[&"trace", &"plot", &traces, &"-o", &d.path("p.png")]);
+    let png = image::open(d.path("p.png")).unwrap();
+    assert!(png.width() > 100 && png.height() > 100);
+}
+
+/// Writes a copy of `src` into a new directory `name` under `d`, with `edit` applied to the
+/// lines of `file`.
+fn damaged(
+    d: &TempDir,
+    src: &Path,
+    name: &str,
+    file: &str,
+    edit: impl Fn(&mut Vec<String>),
+) -> std::path::PathBuf {
+    let out = d.path(name);
+    std::fs::create_dir_all(&out).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let p = e.unwrap().path();
+        let target = out.join(p.file_name().unwrap());
+        std::fs::copy(&p, &target).unwrap();
+    }
+    let p = out.join(file);
+    let mut l: Vec<String> = std::fs::read_to_string(&p)
+        .unwrap()
+        .lines()
+        .map(str::to_owned)
+        .collect();
+    edit(&mut l);
+    std::fs::write(&p, l.join("\n") + "\n").unwrap();
+    out
+}
+
+#[test]
+fn bad_trace_directories_name_the_file_and_line() {
+    let d = TempDir::new("tools-bad");
+    let traces = one_process_traces(&d);
+    let f1 = "frame_0001.rank1.jsonl";
+    let n = lines(&traces.join(f1)).len();
+    assert!(n >= 2, "frame 1 has rounds");
+
+    refused(&d.path("missing"), &["missing"]);
+    std::fs::create_dir_all(d.path("empty")).unwrap();
+    refused(&d.path("empty"), &["empty", "no trace files"]);
+
+    // A line cut short, as a killed writer leaves it.
+    let cut = damaged(&d, &traces, "cut", f1, |l| {
+        let k = l.len() - 1;
+        let half = l[k].len() / 2;
+        l[k].truncate(half);
+    });
+    refused(&cut, &[f1, &format!("line {n}"), "truncated"]);
+    // The frame record missing altogether.
+    let short = damaged(&d, &traces, "short", f1, |l| {
+        l.pop();
+    });
+    refused(&short, &[f1, &format!("line {}", n - 1), "frame record"]);
+    // A round lost from the middle.
+    let lost = damaged(&d, &traces, "lost", f1, |l| {
+        l.remove(0);
+    });
+    refused(&lost, &[f1, &format!("line {}", n - 1), "fault rounds"]);
+    // A line of some other JSON Lines file.
+    let foreign = damaged(&d, &traces, "foreign", f1, |l| {
+        l.insert(0, r#"{"level":"info","msg":"hello"}"#.into())
+    });
+    refused(&foreign, &[f1, "line 1", "not a trace record"]);
+    let unknown = damaged(&d, &traces, "unknown", f1, |l| {
+        l.insert(1, r#"{"type":"span","name":"x"}"#.into())
+    });
+    refused(&unknown, &[f1, "line 2", "unknown record type"]);
+    // A round record without its fields.
+    let field = damaged(&d, &traces, "field", f1, |l| {
+        l[0] = r#"{"type":"round","batch":0}"#.into()
+    });
+    refused(&field, &[f1, "line 1", "bad round record"]);
+    // A file of another run beside these.
+    let mixed = damaged(&d, &traces, "mixed", f1, |l| {
+        let k = l.len() - 1;
+        let mut v: Value = serde_json::from_str(&l[k]).unwrap();
+        v["run"] = "another-run".into();
+        l[k] = v.to_string();
+    });
+    refused(
+        &mixed,
+        &[f1, &format!("line {n}"), "different runs", "another-run"],
+    );
+    // A newer schema than this build reads.
+    let newer = damaged(&d, &traces, "newer", f1, |l| {
+        let k = l.len() - 1;
+        let mut v: Value = serde_json::from_str(&l[k]).unwrap();
+        v["version"] = 99.into();
+        l[k] = v.to_string();
+    });
+    refused(&newer, &[f1, "version 99"]);
+    // Version 0 files (no version, no run) are still read.
+    let old = damaged(&d, &traces, "old", f1, |_| {});
+    for f in 0..3 {
+        let p = old.join(format!("frame_{f:04}.rank1.jsonl"));
+        let mut l = lines(&p);
+        let last = l.last_mut().unwrap().as_object_mut().unwrap();
+        last.remove("version");
+        last.remove("run");
+        let text: Vec<String> = l.iter().map(Value::to_string).collect();
+        std::fs::write(&p, text.join("\n") + "\n").unwrap();
+    }
+    assert_eq!(Summary::of(&Traces::read(&old).unwrap()).version, 0);
+}
+
+fn mpirun_traces(k: u32, frames: u32, d: &TempDir) -> std::path::PathBuf {
+    let scene = d.write(
+        "rm.toml",
+        "[image]\nwidth = 72\nheight = 56\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 20000\n",
+    );
+    let dcb = d.path("rm.dcb");
+    ok(&[&"prepare", &scene, &"-o", &dcb]);
+    let traces = d.path("traces");
+    let out = Command::new("timeout")
+        .args(["-k", "5", "120", "mpirun", "--oversubscribe", "-n"])
+        .arg(k.to_string())
+        .arg(env!("CARGO_BIN_EXE_dcrt"))
+        .arg("render")
+        .arg(&dcb)
+        .arg("-o")
+        .arg(d.path("t.png"))
+        .arg("--trace")
+        .arg(&traces)
+        .args(["--cache", "1/8", "--tile", "32", "--min-tile", "8"])
+        .args(["--frames", &frames.to_string()])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .output()
+        .expect("mpirun (apt install openmpi-bin)");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    traces
+}
+
+#[test]
+fn cluster_perfetto_has_a_process_per_rank_and_every_kind_of_span() {
+    let d = TempDir::new("tools-perfetto");
+    let traces = mpirun_traces(4, 2, &d);
+    let out = d.path("p.json");
+    ok(&[&"trace", &"perfetto", &traces, &"-o", &out]);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let ev = v["traceEvents"].as_array().unwrap();
+    let names: BTreeMap<u64, String> = ev
+        .iter()
+        .filter(|e| e["ph"] == "M" && e["name"] == "process_name")
+        .map(|e| {
+            (
+                e["pid"].as_u64().unwrap(),
+                e["args"]["name"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    let want: BTreeMap<u64, String> = [
+        (1, "display (rank 0)"),
+        (2, "balancer (rank 1)"),
+        (3, "render 0 (rank 2)"),
+        (4, "render 1 (rank 3)"),
+    ]
+    .into_iter()
+    .map(|(p, n)| (p, n.to_owned()))
+    .collect();
+    assert_eq!(names, want);
+    let track = |pid: u64, tid: u64| -> String {
+        ev.iter()
+            .find(|e| e["name"] == "thread_name" && e["pid"] == pid && e["tid"] == tid)
+            .map(|e| e["args"]["name"].as_str().unwrap().to_owned())
+            .unwrap_or_default()
+    };
+    // Which kinds of span each process has, by track name.
+    let mut kinds: BTreeMap<u64, BTreeSet<String>> = BTreeMap::new();
+    for e in ev.iter().filter(|e| e["ph"] == "X") {
+        let (pid, tid) = (e["pid"].as_u64().unwrap(), e["tid"].as_u64().unwrap());
+        assert!(e["ts"].as_f64().unwrap() >= 0.0 && e["dur"].as_f64().unwrap() >= 0.0);
+        kinds.entry(pid).or_default().insert(track(pid, tid));
+    }
+    let set = |k: &[&str]| k.iter().map(|s| s.to_string()).collect::<BTreeSet<_>>();
+    assert!(kinds[&1].is_superset(&set(&["frames", "display copies"])));
+    assert!(kinds[&2].contains("frames"));
+    for pid in [3, 4] {
+        let k = &kinds[&pid];
+        assert!(
+            k.is_superset(&set(&[
+                "frames",
+                "GPU rounds",
+                "fetches",
+                "uploads",
+                "tiles"
+            ])),
+            "{pid}: {k:?}"
+        );
+    }
+    assert!(ev.iter().any(|e| e["ph"] == "i" && e["pid"] == 2), "grants");
+    for c in ["hit rate", "live rays", "bytes in flight"] {
+        assert!(
+            ev.iter().any(|e| e["ph"] == "C" && e["name"] == c),
+            "counter {c}"
+        );
+    }
+    // Every flow starts at a render rank and ends at the other one, its blocks' owner.
+    let starts: Vec<&Value> = ev.iter().filter(|e| e["ph"] == "s").collect();
+    assert!(!starts.is_empty(), "flows from faults to owners");
+    for s in starts {
+        let end = ev
+            .iter()
+            .find(|e| e["ph"] == "f" && e["id"] == s["id"])
+            .expect("the flow's end");
+        assert_ne!(end["pid"], s["pid"]);
+        assert!([3, 4].contains(&end["pid"].as_u64().unwrap()));
+    }
+    // The ranks share one clock: a rank traces its first tile after the balancer granted it
+    // (a render rank sets up its GPU before it asks, so its own clock would start hundreds of
+    // ms late), and the display completes the frame after the tiles were traced. The margin is
+    // for ranks leaving the start-up barrier at slightly different times.
+    let t = Traces::read(&traces).unwrap();
+    let complete = t.get(0, 0).unwrap().displays[0].complete_ms;
+    for r in [2, 3] {
+        let tiles = &t.get(0, r).unwrap().tiles;
+        let granted = t
+            .get(0, 1)
+            .unwrap()
+            .grants
+            .iter()
+            .filter(|g| g.rank == r)
+            .map(|g| g.t_ms)
+            .reduce(f64::min)
+            .unwrap();
+        let first = tiles.iter().map(|t| t.start_ms).reduce(f64::min).unwrap();
+        assert!(
+            first >= granted - 20.0,
+            "rank {r}: tile at {first} ms, granted at {granted} ms"
+        );
+        for tile in tiles {
+            assert!(tile.start_ms + tile.trace_ms <= complete + 20.0, "rank {r}");
+        }
+    }
+}
+
+/// The simulator replays a 4-rank run at 4 ranks: its mean frame interval within 25% of the
+/// display's (about 2% here; the margin is for a loaded 2-core machine), and more render ranks
+/// predict shorter frames.
+#[test]
+fn cluster_simulate_predicts_its_own_run() {
+    let d = TempDir::new("tools-sim");
+    let traces = mpirun_traces(4, 8, &d);
+    let run = |k: &str| -> Value {
+        serde_json::from_str(&ok(&[&"simulate", &traces, &"--ranks", &k, &"--json"])).unwrap()
+    };
+    let own = run("4");
+    let (p, m) = (
+        own["mean_frame_ms"].as_f64().unwrap(),
+        own["measured_mean_frame_ms"].as_f64().unwrap(),
+    );
+    assert!(
+        (p - m).abs() <= 0.25 * m,
+        "predicted {p} ms, measured {m} ms"
+    );
+    assert_eq!(own["frames"].as_array().unwrap().len(), 8);
+    let more = run("6")["mean_frame_ms"].as_f64().unwrap();
+    assert!(more < p, "6 ranks {more} ms, 4 ranks {p} ms");
+    assert!(run("6")["measured_mean_frame_ms"].is_null());
+}
