@@ -2,7 +2,7 @@
 //! round, and the frame's totals, written as JSON Lines, one file per frame and rank.
 
 use crate::error::{Error, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -51,7 +51,7 @@ pub fn run_id(nanos: u64, pid: u32) -> String {
 }
 
 /// A block that faulted in a round.
-#[derive(Clone, Debug, Serialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Fault {
     pub block: u32,
     pub owner: u32,
@@ -65,7 +65,7 @@ pub struct Fault {
 }
 
 /// One fault round: the trace dispatch that faulted, then the fetch and upload that served it.
-#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct Round {
     pub batch: u32,
     pub round: u32,
@@ -78,11 +78,11 @@ pub struct Round {
     pub fetched_bytes: u64,
     pub fetch_us: f64,
     pub upload_us: f64,
-    pub source: &'static str,
+    pub source: String,
 }
 
 /// The frame's totals.
-#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct Summary {
     pub frame: u32,
     /// `render` (or `single` for a one-process render), `display`, `balancer`, or both joined

@@ -207,7 +207,7 @@ impl Tracer<'_> {
             round,
             live,
             dropped: header.dropped,
-            source: dc.source.name(),
+            source: dc.source.name().into(),
             faults: plan.faults,
             ..Round::default()
         };

@@ -9,31 +9,10 @@ use serde::de::DeserializeOwned;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Fault {
-    pub block: u32,
-    pub owner: u32,
-    pub line: u32,
-    pub evicted: Option<u32>,
-    pub waiting: u32,
-    pub served: bool,
-}
+pub use crate::dc::trace::{Fault, Round, Summary};
 
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Round {
-    pub batch: u32,
-    pub round: u32,
-    pub live: u32,
-    pub faults: Vec<Fault>,
-    pub dropped: u32,
-    pub fetched_blocks: u32,
-    pub fetched_bytes: u64,
-    pub fetch_us: f64,
-    pub upload_us: f64,
-    pub source: String,
-}
-
-/// The `frame` record: the schema version and run (absent before version 1), then the totals.
+/// The `frame` record: the schema version and run (absent before version 1), then the totals
+/// the tracer wrote (`dc::trace::Summary`, whose fields it derefs to).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 pub struct Frame {
     #[serde(default)]
@@ -42,25 +21,15 @@ pub struct Frame {
     pub run: Option<String>,
     #[serde(default)]
     pub epoch_wtime: Option<f64>,
-    pub frame: u32,
-    pub role: String,
-    pub rank: u32,
-    pub ranks: u32,
-    pub cache_lines: u32,
-    pub cache_map: String,
-    pub rounds: u32,
-    pub fault_rounds: u32,
-    pub lookups: u64,
-    pub hits: u64,
-    pub misses: u64,
-    pub hit_rate: f64,
-    pub fetched_blocks: u64,
-    pub fetched_bytes: u64,
-    pub frame_ms: f64,
-    pub trace_ms: f64,
-    pub fetch_ms: f64,
-    pub upload_ms: f64,
-    pub shade_ms: f64,
+    #[serde(flatten)]
+    pub summary: Summary,
+}
+
+impl std::ops::Deref for Frame {
+    type Target = Summary;
+    fn deref(&self) -> &Summary {
+        &self.summary
+    }
 }
 
 /// A tile a render rank traced and sent.
@@ -304,25 +273,7 @@ fn empty_frame() -> Frame {
         version: 0,
         run: None,
         epoch_wtime: None,
-        frame: 0,
-        role: String::new(),
-        rank: 0,
-        ranks: 0,
-        cache_lines: 0,
-        cache_map: String::new(),
-        rounds: 0,
-        fault_rounds: 0,
-        lookups: 0,
-        hits: 0,
-        misses: 0,
-        hit_rate: 0.0,
-        fetched_blocks: 0,
-        fetched_bytes: 0,
-        frame_ms: 0.0,
-        trace_ms: 0.0,
-        fetch_ms: 0.0,
-        upload_ms: 0.0,
-        shade_ms: 0.0,
+        summary: Summary::default(),
     }
 }
 
