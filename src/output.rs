@@ -1,6 +1,6 @@
 //! Image outputs: PNG (sRGB, 8 bits) for people, OpenEXR (linear f32 `R`, `G`, `B` and the AOVs
 //! `Z`, `id`, `N.X`, `N.Y`, `N.Z`) for tools. The EXR channel names and meanings are a contract
-//! (docs/ARCHITECTURE.md, Scene and output contract).
+//! (docs/ARCHITECTURE.md, EXR channels); how outputs are written, docs/ARCHITECTURE.md, Outputs.
 
 use crate::error::{Error as DcrtError, Result};
 use crate::gpu::tracer::Frame;

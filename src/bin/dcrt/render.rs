@@ -28,8 +28,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     // Options are checked before the scene is loaded.
     a.shade.apply(Shading::default())?;
     // Every output path is checked before the scene is loaded, so a run never fails at the end
-    // over a path, and no output replaces an input (docs/ARCHITECTURE.md, Scene and output
-    // contract).
+    // over a path, and no output replaces an input (docs/ARCHITECTURE.md, Outputs).
     let mut outputs = vec![("PNG", a.output.as_path(), a.frames)];
     if let Some(exr) = &a.exr {
         outputs.push(("EXR", exr.as_path(), a.frames));
