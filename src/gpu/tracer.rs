@@ -150,7 +150,12 @@ pub struct Tracer<'g> {
     /// The BVH depth the model declared (the stack holds `min(depth, MAX_STACK)` entries).
     pub(super) depth: u32,
     constants: Constants,
+    /// Called after each sample pass of a batch with (passes done, passes in the rectangle).
+    progress: Option<Progress>,
 }
+
+/// What `Tracer::set_progress` installs.
+pub type Progress = Box<dyn FnMut(u64, u64)>;
 
 impl<'g> Tracer<'g> {
     /// Uploads a model's blocks; `dc` is `None` for a replicated model.
@@ -297,6 +302,7 @@ impl<'g> Tracer<'g> {
             frame_start: Instant::now(),
             depth: model.depth,
             constants,
+            progress: None,
         };
         tracer.bound = tracer.bind_kernels();
         Ok(tracer)
@@ -337,6 +343,12 @@ impl<'g> Tracer<'g> {
             spawn: k.spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             gather: k.gather.as_ref().map(|g| g.bind(gpu, with(fill))),
         }
+    }
+
+    /// Installs (or with `None` removes) what is told of each finished sample pass, so that a
+    /// long render can say how far it is.
+    pub fn set_progress(&mut self, progress: Option<Progress>) {
+        self.progress = progress;
     }
 
     /// Changes the shading settings; the pipelines are rebuilt when the mode changes.
@@ -431,6 +443,8 @@ impl<'g> Tracer<'g> {
             )));
         }
         let mut first = 0;
+        let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
+        let mut passed = 0u64;
         while first < tiles {
             let n_tiles = tiles_per_batch.min(tiles - first);
             self.params.first_tile = first;
@@ -459,6 +473,10 @@ impl<'g> Tracer<'g> {
                     }
                 }
                 stats.shade_seconds += t2.elapsed().as_secs_f64();
+                passed += 1;
+                if let Some(p) = self.progress.as_mut() {
+                    p(passed, passes);
+                }
             }
             let t = Instant::now();
             self.read_pixels(first, n_tiles, rect, sh.spp, &mut pixels)?;

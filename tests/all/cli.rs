@@ -132,3 +132,42 @@ fn damaged_block_files_name_block_and_owner() {
         assert!(err.contains(needle), "{err}");
     }
 }
+
+#[test]
+fn long_renders_say_how_far_they_are() {
+    let d = TempDir::new("cli-progress");
+    let scene = d.write("s.toml", SCENE);
+    let out = d.path("p.png");
+    // Every pass reported: 4 samples over one batch, the last pass (the frame done) not.
+    let err = ok(&[
+        &"render",
+        &scene,
+        &"-o",
+        &out,
+        &"--spp",
+        &"4",
+        &"--progress-every",
+        &"0",
+    ]);
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.contains("sample passes"))
+        .collect();
+    assert_eq!(
+        lines,
+        [
+            "  1 of 4 sample passes",
+            "  2 of 4 sample passes",
+            "  3 of 4 sample passes"
+        ]
+    );
+    // A render shorter than the interval says nothing of the kind.
+    let err = ok(&[&"render", &scene, &"-o", &out, &"--spp", &"4"]);
+    assert!(!err.contains("sample passes"), "{err}");
+    let r = dcrt(&[&"render", &scene, &"-o", &out, &"--progress-every", &"-1"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("--progress-every"),
+        "{err}"
+    );
+}

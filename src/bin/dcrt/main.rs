@@ -166,6 +166,9 @@ struct RenderArgs {
     /// PNG exposure in stops (the EXR stays linear).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     exposure: f32,
+    /// Print how far a frame is every this many seconds (a long render with many samples).
+    #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
+    progress_every: f64,
     #[command(flatten)]
     shade: ShadeArgs,
     #[command(flatten)]

@@ -25,6 +25,12 @@ pub fn render(a: RenderArgs) -> Result<()> {
     if !a.exposure.is_finite() {
         bail!("--exposure must be finite, got {}", a.exposure);
     }
+    if !(a.progress_every >= 0.0 && a.progress_every.is_finite()) {
+        bail!(
+            "--progress-every must be a number of seconds, 0 or more, got {}",
+            a.progress_every
+        );
+    }
     // Options are checked before the scene is loaded.
     a.shade.apply(Shading::default())?;
     // Every output path is checked before the scene is loaded, so a run never fails at the end
@@ -108,6 +114,15 @@ fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Resu
         }
         None => eprintln!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
     }
+    // A frame that takes long says how far it is, no more often than --progress-every.
+    let every = std::time::Duration::from_secs_f64(a.progress_every);
+    let mut last = std::time::Instant::now();
+    tracer.set_progress(Some(Box::new(move |done, total| {
+        if done < total && last.elapsed() >= every {
+            last = std::time::Instant::now();
+            eprintln!("  {done} of {total} sample passes");
+        }
+    })));
     let plan = FramePlan {
         frames: a.frames,
         view: View::Orbit(loaded.camera),
