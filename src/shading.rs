@@ -45,6 +45,38 @@ impl Mode {
     }
 }
 
+/// How `sample2` draws a pixel's samples (docs/ARCHITECTURE.md, Shading).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampler {
+    /// Owen-scrambled Sobol' with a shuffled index per dimension pair: stratified and
+    /// decorrelated.
+    #[default]
+    Sobol,
+    /// Independent uniform numbers hashed from (seed, pixel, dimension, index): the unbiased
+    /// baseline.
+    Independent,
+}
+
+impl Sampler {
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Sobol => "sobol",
+            Sampler::Independent => "independent",
+        }
+    }
+}
+
 /// A light of the `shadows` mode. Colours scale the light: a surface facing a directional
 /// light of colour c receives albedo * c; a point light's colour is that at unit distance.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -87,6 +119,7 @@ pub struct Shading {
     /// combine into the render of `0..a+b` (progressive accumulation).
     pub first_sample: u32,
     pub seed: u32,
+    pub sampler: Sampler,
     pub ao_rays: u32,
     /// Occluders farther than this do not count (f32::INFINITY: any).
     pub ao_distance: f32,
@@ -118,6 +151,7 @@ impl Default for Shading {
             spp: 1,
             first_sample: 0,
             seed: 0,
+            sampler: Sampler::Sobol,
             ao_rays: DEFAULT_AO_RAYS,
             ao_distance: f32::INFINITY,
             max_depth: 8,
@@ -141,6 +175,7 @@ pub struct Overrides {
     pub mode: Option<Mode>,
     pub spp: Option<u32>,
     pub seed: Option<u32>,
+    pub sampler: Option<Sampler>,
     pub ao_rays: Option<u32>,
     pub ao_distance: Option<f32>,
     pub max_depth: Option<u32>,
@@ -169,6 +204,7 @@ impl Overrides {
         s.mode = self.mode.unwrap_or(s.mode);
         s.spp = self.spp.unwrap_or(s.spp);
         s.seed = self.seed.unwrap_or(s.seed);
+        s.sampler = self.sampler.unwrap_or(s.sampler);
         s.ao_rays = self.ao_rays.unwrap_or(s.ao_rays);
         s.ao_distance = self.ao_distance.unwrap_or(s.ao_distance);
         s.max_depth = self.max_depth.unwrap_or(s.max_depth);

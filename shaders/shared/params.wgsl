@@ -39,7 +39,7 @@ struct Params {
     pad2: u32,
     pad3: u32,
     // Sampling: the sample index of this pass (the sampler's index), the seed, flags (JITTER,
-    // CULL, FIRST_SAMPLE) and the samples per pixel of the render.
+    // CULL, FIRST_SAMPLE, SAMPLER_INDEPENDENT) and the samples per pixel of the render.
     sample: u32,
     seed: u32,
     flags: u32,
@@ -50,5 +50,6 @@ struct Params {
 const JITTER: u32 = 1u;        // jitter primary rays in the pixel (spp > 1)
 const CULL: u32 = 2u;          // primary rays that miss the root box skip traversal
 const FIRST_SAMPLE: u32 = 4u;  // the first pass of a render: the shade kernel resets pixels
+const SAMPLER_INDEPENDENT: u32 = 8u;  // sample2 hashes independent uniforms (default: Sobol')
 
 @group(0) @binding(0) var<uniform> params: Params;

@@ -1,5 +1,5 @@
-// The sampler and the hemisphere mapping. Integer arithmetic for the sampler, so the CPU mirrors
-// in mirror::sampling compute the same bits.
+// The samplers and the hemisphere mapping. Integer arithmetic for the samplers, so the CPU
+// mirrors in mirror::sampling compute the same bits (docs/ARCHITECTURE.md, Shading).
 #import params
 
 const PI: f32 = 3.14159265358979;
@@ -15,13 +15,54 @@ fn hash(x: u32) -> u32 {
     return v;
 }
 
-// The R2 sequence (Roberts 2018) in 32-bit fixed point, rotated per pixel and dimension pair by
-// a hash (Cranley-Patterson). Mirrored by mirror::sampling::sample2.
-fn sample2(pixel: u32, dim: u32, index: u32) -> vec2<f32> {
-    let h = hash(pixel ^ hash(dim * 0x9e3779b9u + params.seed));
-    let x = hash(h) + index * 3242174889u;
-    let y = hash(h ^ 0x68bc21ebu) + index * 2447445414u;
+// A nested uniform (Owen) scramble of the base-2 digits of x, most significant first, keyed by
+// seed: a hash in which each output bit depends only on itself and more significant input bits
+// (Laine and Karras; constants of N. Vegdahl), applied to the reversed word. A bijection of
+// every aligned block of 2^k values onto an aligned block. Mirrored by mirror::sampling::owen.
+fn owen(x: u32, seed: u32) -> u32 {
+    var v = reverseBits(x);
+    v ^= v * 0x3d20adeau;
+    v += seed;
+    v *= (seed >> 16u) | 1u;
+    v ^= v * 0x05526c56u;
+    v ^= v * 0x53a22864u;
+    return reverseBits(v);
+}
+
+// Sobol' dimension 1 of point i in 32-bit fixed point. Its generator matrix is Pascal's triangle
+// mod 2: digit r (weight 2^-(r+1)) is the parity of the bits c of i with c a superset of r
+// (Lucas), a superset sum in five shift steps instead of a loop over the bits.
+// Mirrored by mirror::sampling::sobol1.
+fn sobol1(i: u32) -> u32 {
+    var y = i;
+    y ^= (y >> 1u) & 0x55555555u;
+    y ^= (y >> 2u) & 0x33333333u;
+    y ^= (y >> 4u) & 0x0f0f0f0fu;
+    y ^= (y >> 8u) & 0x00ff00ffu;
+    y ^= (y >> 16u) & 0x0000ffffu;
+    return reverseBits(y);
+}
+
+fn unit2(x: u32, y: u32) -> vec2<f32> {
     return vec2(f32(x >> 8u), f32(y >> 8u)) * (1.0 / 16777216.0);
+}
+
+// Point `index` of dimension pair `dim` of a pixel's samples, in [0,1)^2.
+// Sobol' (default): per (seed, pixel, pair), the index is shuffled by an Owen scramble, then
+// Sobol' dimensions 0 and 1 of the shuffled index are Owen-scrambled with seeds of their own
+// (Burley, JCGT 2020): each pair is a (0,2)-sequence, and pairs are independent of each other.
+// With SAMPLER_INDEPENDENT: two hashes of (seed, pixel, pair, index), independent uniforms.
+// Mirrored by mirror::sampling::sample2.
+fn sample2(pixel: u32, dim: u32, index: u32) -> vec2<f32> {
+    let key = hash(pixel ^ hash(dim * 0x9e3779b9u + params.seed));
+    if (params.flags & SAMPLER_INDEPENDENT) != 0u {
+        let k = hash(index ^ key);
+        return unit2(hash(k ^ 0x2c1b3c6du), hash(k ^ 0x297a2d39u));
+    }
+    let i = owen(index, hash(key ^ 0x68bc21ebu));
+    let x = owen(reverseBits(i), hash(key ^ 0x02e5be93u));
+    let y = owen(sobol1(i), hash(key ^ 0x967a889bu));
+    return unit2(x, y);
 }
 
 // Cosine-weighted direction about unit n from u in [0,1)^2, with the branchless orthonormal

@@ -9,7 +9,7 @@ use crate::gpu::Gpu;
 use crate::gpu::tracer::Settings;
 use crate::render::{ImageOf, Loaded};
 use crate::scene::check_image_size;
-use crate::shading::{Mode, Shading};
+use crate::shading::{Mode, Sampler, Shading};
 use clap::ValueEnum;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
@@ -48,22 +48,24 @@ pub struct RenderSetup {
 /// where the value is large). The model's words, from `FINGERPRINT` on, are compared between
 /// render ranks only (the display and the balancer do not read the model).
 type Report = [u32; WORDS];
-const WORDS: usize = 13;
+const WORDS: usize = 14;
 const OPENED: usize = 0;
 /// Width, height, frames.
 const SIZE: std::ops::Range<usize> = 1..4;
-/// Mode (its index among `Mode`'s values), samples per pixel, seed.
+/// Mode (its index among `Mode`'s values), samples per pixel, seed, sampler (its index among
+/// `Sampler`'s values).
 const MODE: usize = 4;
 const SPP: usize = 5;
 const SEED: usize = 6;
+const SAMPLER: usize = 7;
 /// A hash of the whole of the shading settings (lights, rays, depths, sky, offsets...).
-const SHADING: usize = 7;
+const SHADING: usize = 8;
 /// A hash of what the display applies: exposure, background, AOVs, the display benchmark.
-const DISPLAY: usize = 8;
+const DISPLAY: usize = 9;
 /// The block fingerprint's low and high words, then hashes of the camera and of the mesh table.
-const FINGERPRINT: std::ops::Range<usize> = 9..11;
-const CAMERA: usize = 11;
-const MESHES: usize = 12;
+const FINGERPRINT: std::ops::Range<usize> = 10..12;
+const CAMERA: usize = 12;
+const MESHES: usize = 13;
 
 /// A stable hash of a value's `Debug` form (every rank runs the same build: floats print the same).
 fn digest(v: &impl std::fmt::Debug) -> u32 {
@@ -80,6 +82,10 @@ fn report(opts: &Options, image: Image, shading: &Shading, of: &ImageOf) -> Repo
         .unwrap_or(usize::MAX) as u32;
     r[SPP] = shading.spp;
     r[SEED] = shading.seed;
+    r[SAMPLER] = Sampler::value_variants()
+        .iter()
+        .position(|s| *s == shading.sampler)
+        .unwrap_or(usize::MAX) as u32;
     r[SHADING] = digest(shading);
     r[DISPLAY] = digest(&(
         opts.exposure.to_bits(),
@@ -193,6 +199,11 @@ fn disagreement(all: &[Report], roles: Roles) -> Option<(u32, String)> {
             .get(c[MODE] as usize)
             .map_or("?", |m| m.name())
     };
+    let sampler = |c: &Report| {
+        Sampler::value_variants()
+            .get(c[SAMPLER] as usize)
+            .map_or("?", |s| s.name())
+    };
     for (r, c) in all.iter().enumerate() {
         let z = &all[0];
         if c[SIZE] != z[SIZE] {
@@ -204,18 +215,20 @@ fn disagreement(all: &[Report], roles: Roles) -> Option<(u32, String)> {
                 ),
             ));
         }
-        if c[MODE..=SEED] != z[MODE..=SEED] {
+        if c[MODE..=SAMPLER] != z[MODE..=SAMPLER] {
             return Some((
                 r as u32,
                 format!(
-                    "rank {r} renders --mode {} --spp {} --seed {}, rank 0 --mode {} --spp {} \
-                     --seed {}: {SAME}",
+                    "rank {r} renders --mode {} --spp {} --seed {} --sampler {}, rank 0 --mode {} \
+                     --spp {} --seed {} --sampler {}: {SAME}",
                     mode(c),
                     c[SPP],
                     c[SEED],
+                    sampler(c),
                     mode(z),
                     z[SPP],
-                    z[SEED]
+                    z[SEED],
+                    sampler(z)
                 ),
             ));
         }
@@ -244,7 +257,10 @@ fn disagreement(all: &[Report], roles: Roles) -> Option<(u32, String)> {
                 format!(
                     "rank {r}'s model differs from rank {first}'s (block fingerprints \
                      {:08x}{:08x} and {:08x}{:08x}): every rank must read the same model",
-                    c[10], c[9], f[10], f[9]
+                    c[FINGERPRINT.end - 1],
+                    c[FINGERPRINT.start],
+                    f[FINGERPRINT.end - 1],
+                    f[FINGERPRINT.start]
                 ),
             ));
         }

@@ -21,7 +21,7 @@ use crate::error::{Error, Result};
 use crate::mirror::tiles::tile_pixel;
 use crate::reference::Ray;
 use crate::scene::CameraBasis;
-use crate::shading::Shading;
+use crate::shading::{Sampler, Shading};
 use std::mem::size_of;
 use std::time::Instant;
 
@@ -453,7 +453,11 @@ impl<'g> Tracer<'g> {
                 self.params.sample = sh.first_sample + s;
                 self.params.flags = if sh.spp > 1 { flags::JITTER } else { 0 }
                     | if sh.cull { flags::CULL } else { 0 }
-                    | if s == 0 { flags::FIRST_SAMPLE } else { 0 };
+                    | if s == 0 { flags::FIRST_SAMPLE } else { 0 }
+                    | match sh.sampler {
+                        Sampler::Sobol => 0,
+                        Sampler::Independent => flags::SAMPLER_INDEPENDENT,
+                    };
                 let t = Instant::now();
                 stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);
                 let t2 = Instant::now();

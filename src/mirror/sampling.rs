@@ -1,4 +1,6 @@
-//! The sampler and the hemisphere mapping of `shaders/shared/sampling.wgsl`.
+//! The samplers and the hemisphere mapping of `shaders/shared/sampling.wgsl`.
+
+use crate::shading::Sampler;
 
 /// `hash` (lowbias32, C. Wellons), bit for bit.
 pub fn hash(x: u32) -> u32 {
@@ -11,13 +13,49 @@ pub fn hash(x: u32) -> u32 {
     v
 }
 
-/// `sample2`, bit for bit: point `index` of the R2 sequence in 32-bit fixed point, rotated per
-/// pixel and dimension pair by a hash. `seed` is the GPU's `params.seed`.
-pub fn sample2(seed: u32, pixel: u32, dim: u32, index: u32) -> [f32; 2] {
-    let h = hash(pixel ^ hash(dim.wrapping_mul(0x9e37_79b9).wrapping_add(seed)));
-    let x = hash(h).wrapping_add(index.wrapping_mul(3_242_174_889));
-    let y = hash(h ^ 0x68bc_21eb).wrapping_add(index.wrapping_mul(2_447_445_414));
+/// `owen`, bit for bit: a nested uniform (Owen) scramble of the base-2 digits of `x`, most
+/// significant first, keyed by `seed`.
+pub fn owen(x: u32, seed: u32) -> u32 {
+    let mut v = x.reverse_bits();
+    v ^= v.wrapping_mul(0x3d20_adea);
+    v = v.wrapping_add(seed);
+    v = v.wrapping_mul((seed >> 16) | 1);
+    v ^= v.wrapping_mul(0x0552_6c56);
+    v ^= v.wrapping_mul(0x53a2_2864);
+    v.reverse_bits()
+}
+
+/// `sobol1`, bit for bit: Sobol' dimension 1 of point `i` in 32-bit fixed point.
+pub fn sobol1(i: u32) -> u32 {
+    let mut y = i;
+    y ^= (y >> 1) & 0x5555_5555;
+    y ^= (y >> 2) & 0x3333_3333;
+    y ^= (y >> 4) & 0x0f0f_0f0f;
+    y ^= (y >> 8) & 0x00ff_00ff;
+    y ^= (y >> 16) & 0x0000_ffff;
+    y.reverse_bits()
+}
+
+fn unit2(x: u32, y: u32) -> [f32; 2] {
     [(x >> 8) as f32, (y >> 8) as f32].map(|v| v * (1.0 / 16_777_216.0))
+}
+
+/// `sample2`, bit for bit: point `index` of dimension pair `dim` of pixel `pixel`'s samples.
+/// `seed` is the GPU's `params.seed`; `sampler` its `SAMPLER_INDEPENDENT` flag.
+pub fn sample2(sampler: Sampler, seed: u32, pixel: u32, dim: u32, index: u32) -> [f32; 2] {
+    let key = hash(pixel ^ hash(dim.wrapping_mul(0x9e37_79b9).wrapping_add(seed)));
+    match sampler {
+        Sampler::Independent => {
+            let k = hash(index ^ key);
+            unit2(hash(k ^ 0x2c1b_3c6d), hash(k ^ 0x297a_2d39))
+        }
+        Sampler::Sobol => {
+            let i = owen(index, hash(key ^ 0x68bc_21eb));
+            let x = owen(i.reverse_bits(), hash(key ^ 0x02e5_be93));
+            let y = owen(sobol1(i), hash(key ^ 0x967a_889b));
+            unit2(x, y)
+        }
+    }
 }
 
 /// `cosine_dir`: a cosine-weighted direction about unit `n` from `u` in [0,1)^2, with the
@@ -45,25 +83,106 @@ pub fn cosine_dir(n: [f32; 3], u: [f32; 2]) -> [f32; 3] {
 mod tests {
     use super::*;
 
+    /// Sobol' dimension 1 the textbook way: the direction numbers v_0 = 1/2,
+    /// v_k = v_{k-1} xor v_{k-1} / 2, xor-ed for the set bits of i.
+    fn sobol1_by_directions(i: u32) -> u32 {
+        let mut v = 0x8000_0000u32;
+        let mut x = 0;
+        for bit in 0..32 {
+            if (i >> bit) & 1 == 1 {
+                x ^= v;
+            }
+            v ^= v >> 1;
+        }
+        x
+    }
+
     #[test]
-    fn sampler_is_stratified_and_in_range() {
-        // 64 points of one pixel's sequence fall in 64 different cells of an 8x8 grid at most
-        // twice each (R2 is a low-discrepancy lattice; a random set would collide far more).
+    fn sobol1_matches_its_direction_numbers() {
+        let mut r = 0x1234_5678u32;
+        for i in (0..4096).chain((0..4096).map(|_| {
+            r = hash(r);
+            r
+        })) {
+            assert_eq!(sobol1(i), sobol1_by_directions(i), "point {i}");
+        }
+    }
+
+    #[test]
+    fn owen_permutes_aligned_blocks() {
+        // Scrambling is a bijection of every aligned block of 2^k values: the first 2^k points
+        // of a scrambled (0,2)-sequence are still a net.
+        for seed in [0u32, 1, 0xdead_beef, 0x8000_0001] {
+            for k in [1u32, 4, 10] {
+                let n = 1u32 << k;
+                let mut seen: Vec<u32> = (0..n).map(|i| owen(i, seed)).collect();
+                let block = seen[0] >> k;
+                assert!(seen.iter().all(|v| v >> k == block), "seed {seed} k {k}");
+                seen.sort_unstable();
+                seen.dedup();
+                assert_eq!(seen.len() as u32, n, "seed {seed} k {k}: a permutation");
+            }
+        }
+    }
+
+    #[test]
+    fn sobol_pairs_are_nets_and_in_range() {
+        // The first 64 points of every pair of a pixel put exactly one point in each cell of
+        // every 2^a x 2^b grid with a + b = 6: a (0,6,2)-net. Independent points collide.
+        for dim in [0u32, 1, 2, 7] {
+            let pts: Vec<[f32; 2]> = (0..64)
+                .map(|i| sample2(Sampler::Sobol, 7, 1234, dim, i))
+                .collect();
+            for a in 0..=6 {
+                let (nx, ny) = (1usize << a, 1usize << (6 - a));
+                let mut cells = vec![0u32; 64];
+                for [x, y] in &pts {
+                    assert!((0.0..1.0).contains(x) && (0.0..1.0).contains(y));
+                    cells[(y * ny as f32) as usize * nx + (x * nx as f32) as usize] += 1;
+                }
+                assert!(cells.iter().all(|&c| c == 1), "dim {dim}, {nx}x{ny}");
+            }
+        }
         let mut cells = [0u32; 64];
         for i in 0..64 {
-            let [x, y] = sample2(7, 1234, 1, i);
+            let [x, y] = sample2(Sampler::Independent, 7, 1234, 1, i);
             assert!((0.0..1.0).contains(&x) && (0.0..1.0).contains(&y));
             cells[(y * 8.0) as usize * 8 + (x * 8.0) as usize] += 1;
         }
-        assert!(cells.iter().all(|&c| c <= 2), "{cells:?}");
-        assert!(cells.iter().filter(|&&c| c > 0).count() >= 48);
+        assert!(
+            cells.iter().any(|&c| c > 1),
+            "independent points are not a net"
+        );
+    }
+
+    #[test]
+    fn pairs_are_decorrelated_within_a_pixel() {
+        // One pixel's 1024 samples of the depth-0 and depth-1 bounce pairs (2 and 4), as points
+        // (x of one, x of the other) on a 16x16 grid: independent dimensions fill nearly every
+        // cell (about 5 of 256 stay empty); dimensions that are one sequence shifted put the
+        // points on a line and fill a few dozen.
+        for sampler in [Sampler::Sobol, Sampler::Independent] {
+            for pixel in [0u32, 99, 4242] {
+                let mut cells = [false; 256];
+                for i in 0..1024 {
+                    let a = sample2(sampler, 3, pixel, 2, i)[0];
+                    let b = sample2(sampler, 3, pixel, 4, i)[0];
+                    cells[(b * 16.0) as usize * 16 + (a * 16.0) as usize] = true;
+                }
+                let filled = cells.iter().filter(|&&c| c).count();
+                assert!(
+                    filled >= 236,
+                    "{sampler:?}, pixel {pixel}: {filled} of 256 cells"
+                );
+            }
+        }
     }
 
     #[test]
     fn cosine_directions_are_unit_and_above_the_surface() {
         let n = [0.0f32, -0.6, 0.8];
         for i in 0..256 {
-            let d = cosine_dir(n, sample2(0, 5, 1, i));
+            let d = cosine_dir(n, sample2(Sampler::Sobol, 0, 5, 1, i));
             let len: f32 = d.iter().map(|c| c * c).sum::<f32>().sqrt();
             assert!((len - 1.0).abs() < 1e-5);
             assert!(d.iter().zip(n).map(|(a, b)| a * b).sum::<f32>() >= -1e-6);

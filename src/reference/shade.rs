@@ -67,7 +67,7 @@ pub fn reference_image(
                 let n_rays = shading.ao_rays;
                 let open = (0..n_rays)
                     .filter(|&k| {
-                        let u = sample2(shading.seed, i, 1, sample * n_rays + k);
+                        let u = sample2(shading.sampler, shading.seed, i, 1, sample * n_rays + k);
                         visible(cosine_dir(n, u), shading.ao_distance)
                     })
                     .count();

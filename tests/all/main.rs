@@ -5,6 +5,7 @@ mod bad_input;
 mod cli;
 mod cluster;
 mod common;
+mod convergence;
 mod dc;
 mod frames;
 mod gpu_vs_cpu;

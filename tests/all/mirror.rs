@@ -3,11 +3,12 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, Ranks, cache_line};
-use dcrt::gpu::layout::{MirrorCase, Params};
+use dcrt::gpu::layout::{MirrorCase, Params, flags};
 use dcrt::gpu::probe::run_mirror;
 use dcrt::mirror::offset::offset_ray_with;
 use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
 use dcrt::mirror::tiles::tile_pixel;
+use dcrt::shading::Sampler;
 
 /// Test inputs: coordinates, normals and samples.
 trait Cases {
@@ -79,19 +80,36 @@ fn params() -> Params {
 #[test]
 fn integer_twins_match_the_gpu_bit_for_bit() {
     let gpu = gpu();
-    let (p, cases) = (params(), cases(4096));
-    let out = run_mirror(&gpu, &p, &cases).unwrap();
-    assert_eq!(out.len(), cases.len());
-    for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
-        assert_eq!(r.words[0], hash(c.words[0]), "hash, case {i}");
-        let s = sample2(p.seed, c.words[1], c.words[2], c.words[3]);
-        assert_eq!(
-            [r.sample[0].to_bits(), r.sample[1].to_bits()],
-            s.map(f32::to_bits),
-            "sample2, case {i}"
-        );
-        let t = tile_pixel(p.first_tile, p.tiles_x, i as u32);
-        assert_eq!((r.words[1], r.words[2]), t, "tile_pixel, slot {i}");
+    let mut cases = cases(4096);
+    // Small sample indices too (the first samples of a render), and the top of the range.
+    for (i, c) in cases.iter_mut().enumerate().take(1024) {
+        c.words[3] = if i < 768 {
+            i as u32
+        } else {
+            u32::MAX - i as u32
+        };
+    }
+    for (sampler, flag) in [
+        (Sampler::Sobol, 0),
+        (Sampler::Independent, flags::SAMPLER_INDEPENDENT),
+    ] {
+        let p = Params {
+            flags: flag | flags::JITTER,
+            ..params()
+        };
+        let out = run_mirror(&gpu, &p, &cases).unwrap();
+        assert_eq!(out.len(), cases.len());
+        for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
+            assert_eq!(r.words[0], hash(c.words[0]), "hash, case {i}");
+            let s = sample2(sampler, p.seed, c.words[1], c.words[2], c.words[3]);
+            assert_eq!(
+                [r.sample[0].to_bits(), r.sample[1].to_bits()],
+                s.map(f32::to_bits),
+                "sample2 {sampler:?}, case {i}"
+            );
+            let t = tile_pixel(p.first_tile, p.tiles_x, i as u32);
+            assert_eq!((r.words[1], r.words[2]), t, "tile_pixel, slot {i}");
+        }
     }
 }
 

@@ -18,7 +18,7 @@ use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
 use dcrt::output::Aov;
 use dcrt::render::DcOptions;
-use dcrt::shading::{Mode, Overrides, Shading};
+use dcrt::shading::{Mode, Overrides, Sampler, Shading};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -97,6 +97,10 @@ struct ShadeArgs {
     /// Sampler seed: the same seed gives the same bits.
     #[arg(long)]
     seed: Option<u32>,
+    /// Sampler: sobol (Owen-scrambled Sobol', the default) or independent (hashed uniform
+    /// numbers, the unbiased baseline).
+    #[arg(long, value_enum)]
+    sampler: Option<Sampler>,
     /// Ambient occlusion rays per hit (default 36).
     #[arg(long)]
     ao_rays: Option<u32>,
@@ -125,6 +129,7 @@ impl ShadeArgs {
             mode: self.mode,
             spp: self.spp,
             seed: self.seed,
+            sampler: self.sampler,
             ao_rays: self.ao_rays,
             ao_distance: self.ao_distance,
             max_depth: self.max_depth,
@@ -287,9 +292,13 @@ struct BenchArgs {
     /// images: --width/--height default to 32 here), and the cost and error of accuracy knobs.
     #[arg(long)]
     shading: bool,
-    /// --shading: the largest spp of the curve.
-    #[arg(long, default_value_t = 32)]
+    /// --shading: the largest spp of the curves (powers of two from 1).
+    #[arg(long, default_value_t = 1024)]
     max_spp: u32,
+    /// --shading: samples per pixel of the path references (AO: a quarter), two renders with
+    /// the independent sampler and other seeds.
+    #[arg(long, default_value_t = 4096)]
+    reference_spp: u32,
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,

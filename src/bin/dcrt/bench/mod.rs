@@ -45,6 +45,7 @@ pub fn bench(a: BenchArgs) -> Result<()> {
                 a.triangles
             },
             max_spp: a.max_spp,
+            reference_spp: a.reference_spp,
             json: a.json,
             plot: a.plot.as_deref(),
         };

@@ -1,5 +1,6 @@
 //! `dcrt bench --shading`: time against error for AO and path tracing on the rm and assembly
-//! generators, and the cost and error of the accuracy knobs. A table, `--json`, and a PNG plot.
+//! generators with both samplers, the time each takes to reach given errors, and the cost and
+//! error of the accuracy knobs. A table, `--json`, and a PNG plot.
 
 use super::{MODELS, Table, emit};
 use anyhow::Result;
@@ -9,17 +10,40 @@ use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
 use dcrt::render::Prepared;
 use dcrt::scene::Scene;
-use dcrt::shading::{Mode, Offset, Shading};
+use dcrt::shading::{Mode, Offset, Sampler, Shading};
 use std::path::Path;
 
 #[derive(serde::Serialize, Clone)]
 pub struct Point {
     scene: String,
     mode: String,
+    sampler: String,
     spp: u32,
     ms: f64,
     rmse: f64,
     rel_mse: f64,
+}
+
+/// How long a sampler takes to reach an RMSE: interpolated log-log between the two curve points
+/// around it (`None`: not reached by the largest spp).
+#[derive(serde::Serialize)]
+pub struct TimeTo {
+    scene: String,
+    mode: String,
+    sampler: String,
+    rmse: f64,
+    spp: Option<f64>,
+    ms: Option<f64>,
+}
+
+/// A reference: the mean of two renders with the independent sampler and other seeds; `noise`
+/// estimates its own RMSE from their difference.
+#[derive(serde::Serialize)]
+pub struct RefInfo {
+    scene: String,
+    mode: String,
+    spp: u32,
+    noise: f64,
 }
 
 #[derive(serde::Serialize)]
@@ -41,22 +65,55 @@ pub struct Report {
     width: u32,
     height: u32,
     triangles: u64,
-    reference_spp: [u32; 2],
+    ao_rays: u32,
+    max_depth: u32,
+    references: Vec<RefInfo>,
     curve: Vec<Point>,
+    time_to: Vec<TimeTo>,
     knobs: Vec<Knob>,
 }
 
-fn error(f: &Frame, r: &Frame) -> (f64, f64) {
+/// The RMSE levels of the time-to-error table.
+const LEVELS: [f64; 4] = [0.04, 0.02, 0.01, 0.005];
+
+fn time_to(points: &[&Point], level: f64) -> (Option<f64>, Option<f64>) {
+    let lg = |v: f64| v.max(1e-12).ln();
+    for w in points.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if a.rmse <= level {
+            return (Some(f64::from(a.spp)), Some(a.ms));
+        }
+        if b.rmse <= level {
+            let t = (lg(a.rmse) - lg(level)) / (lg(a.rmse) - lg(b.rmse));
+            let at = |x: f64, y: f64| (lg(x) + t * (lg(y) - lg(x))).exp();
+            return (
+                Some(at(f64::from(a.spp), f64::from(b.spp))),
+                Some(at(a.ms, b.ms)),
+            );
+        }
+    }
+    match points {
+        [p] if p.rmse <= level => (Some(f64::from(p.spp)), Some(p.ms)),
+        _ => (None, None),
+    }
+}
+
+/// RMSE and relative MSE of an image against a reference (linear RGB per pixel).
+fn error(f: &Frame, r: &[[f64; 3]]) -> (f64, f64) {
     let (mut se, mut rel) = (0.0, 0.0);
     let n = (3 * f.pixels.len()) as f64;
-    for (p, q) in f.pixels.iter().zip(&r.pixels) {
-        for a in 0..3 {
-            let d = f64::from(p.rgb[a]) - f64::from(q.rgb[a]);
+    for (p, q) in f.pixels.iter().zip(r) {
+        for (c, r) in p.rgb.iter().zip(q) {
+            let d = f64::from(*c) - r;
             se += d * d;
-            rel += d * d / (f64::from(q.rgb[a]).powi(2) + 1e-2);
+            rel += d * d / (r.powi(2) + 1e-2);
         }
     }
     ((se / n).sqrt(), rel / n)
+}
+
+fn rgb(f: &Frame) -> Vec<[f64; 3]> {
+    f.pixels.iter().map(|p| p.rgb.map(f64::from)).collect()
 }
 
 fn bits(f: &Frame) -> Vec<u8> {
@@ -68,25 +125,31 @@ pub struct Args<'a> {
     pub height: u32,
     pub triangles: u64,
     pub max_spp: u32,
+    /// Samples per pixel of the references (AO: a quarter of it).
+    pub reference_spp: u32,
     pub json: bool,
     pub plot: Option<&'a Path>,
 }
 
 pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
     let (w, h) = (a.width, a.height);
-    let ref_spp = [64u32, 256u32]; // AO (x36 rays), path
+    // AO with few rays per hit, so that spp, not rays, carry the convergence.
+    let (ao_rays, max_depth) = (4u32, 3u32);
     let mut curve = Vec::new();
     let mut knobs = Vec::new();
+    let mut references = Vec::new();
     for g in MODELS {
         let scene = Scene::generated(g, a.triangles, w, h);
         let model = scene.load_model()?;
         let camera = scene.camera_or_default(&model);
         let basis = camera.basis(w, h);
         let p = Prepared::from_model(model, Preset::Fast, Format::default(), 0.0)?;
-        for (mi, mode) in [Mode::Ao, Mode::Path].into_iter().enumerate() {
+        for mode in [Mode::Ao, Mode::Path] {
             let base = Shading {
                 mode,
+                ao_rays,
                 ao_distance: 0.25 * p.model.bounds.diagonal() as f32,
+                max_depth,
                 ..Shading::default()
             };
             let mut t = p.tracer(
@@ -100,30 +163,64 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
                 t.set_shading(sh)?;
                 t.render(&basis, scene.background)
             };
-            // Warm-up, then a converged reference with other samples (another seed).
+            // Warm-up, then a converged reference from the independent sampler with other
+            // seeds: unbiased per pixel, and unrelated to either sampler's curve.
             go(&mut t, Shading { spp: 1, ..base })?;
-            let (reference, _) = go(
-                &mut t,
-                Shading {
-                    spp: ref_spp[mi],
-                    seed: 1000,
-                    ..base
-                },
-            )?;
+            let ref_spp = match mode {
+                Mode::Ao => (a.reference_spp / 4).max(2),
+                _ => a.reference_spp.max(2),
+            };
+            let mut half = Shading {
+                spp: ref_spp / 2,
+                seed: 1000,
+                sampler: Sampler::Independent,
+                ..base
+            };
+            let ra = rgb(&go(&mut t, half)?.0);
+            half.seed = 1001;
+            let rb = rgb(&go(&mut t, half)?.0);
+            let reference: Vec<[f64; 3]> = ra
+                .iter()
+                .zip(&rb)
+                .map(|(x, y)| std::array::from_fn(|c| 0.5 * (x[c] + y[c])))
+                .collect();
             let name = g.name().to_string();
-            let mut spp = 1;
-            while spp <= a.max_spp {
-                let (f, s) = go(&mut t, Shading { spp, ..base })?;
-                let (rmse, rel_mse) = error(&f, &reference);
-                curve.push(Point {
-                    scene: name.clone(),
-                    mode: mode.name().into(),
-                    spp,
-                    ms: s.seconds * 1e3,
-                    rmse,
-                    rel_mse,
-                });
-                spp *= 2;
+            let diff: f64 = ra
+                .iter()
+                .zip(&rb)
+                .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).powi(2)))
+                .sum::<f64>()
+                / (3 * ra.len()) as f64;
+            references.push(RefInfo {
+                scene: name.clone(),
+                mode: mode.name().into(),
+                spp: ref_spp,
+                // Var(mean of two) = Var(a - b) / 4.
+                noise: (diff / 4.0).sqrt(),
+            });
+            for sampler in [Sampler::Sobol, Sampler::Independent] {
+                let mut spp = 1;
+                while spp <= a.max_spp {
+                    let (f, s) = go(
+                        &mut t,
+                        Shading {
+                            spp,
+                            sampler,
+                            ..base
+                        },
+                    )?;
+                    let (rmse, rel_mse) = error(&f, &reference);
+                    curve.push(Point {
+                        scene: name.clone(),
+                        mode: mode.name().into(),
+                        sampler: sampler.name().into(),
+                        spp,
+                        ms: s.seconds * 1e3,
+                        rmse,
+                        rel_mse,
+                    });
+                    spp *= 2;
+                }
             }
             // Knobs at 4 spp against the default setting.
             let k = Shading { spp: 4, ..base };
@@ -189,13 +286,40 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
             knob("step budget 256", &f, &s);
         }
     }
+    let mut time_to_rows = Vec::new();
+    for g in MODELS {
+        for mode in [Mode::Ao, Mode::Path] {
+            for sampler in [Sampler::Sobol, Sampler::Independent] {
+                let pts: Vec<&Point> = curve
+                    .iter()
+                    .filter(|p| {
+                        p.scene == g.name() && p.mode == mode.name() && p.sampler == sampler.name()
+                    })
+                    .collect();
+                for level in LEVELS {
+                    let (spp, ms) = time_to(&pts, level);
+                    time_to_rows.push(TimeTo {
+                        scene: g.name().into(),
+                        mode: mode.name().into(),
+                        sampler: sampler.name().into(),
+                        rmse: level,
+                        spp,
+                        ms,
+                    });
+                }
+            }
+        }
+    }
     let report = Report {
         adapter: gpu.describe(),
         width: w,
         height: h,
         triangles: a.triangles,
-        reference_spp: ref_spp,
+        ao_rays,
+        max_depth,
+        references,
         curve,
+        time_to: time_to_rows,
         knobs,
     };
     if let Some(path) = a.plot {
@@ -207,16 +331,19 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
 fn print(report: &Report) {
     println!("adapter   {}", report.adapter);
     println!(
-        "{}x{}, {} triangles per scene; references: AO {} spp x 36 rays, path {} spp (other seed)",
-        report.width,
-        report.height,
-        report.triangles,
-        report.reference_spp[0],
-        report.reference_spp[1]
+        "{}x{}, {} triangles per scene; AO {} rays per hit, path max depth {}, sky 1, no sun",
+        report.width, report.height, report.triangles, report.ao_rays, report.max_depth
     );
+    for r in &report.references {
+        println!(
+            "reference {} {}: {} spp, independent sampler, other seeds; its own RMSE ~{:.5}",
+            r.scene, r.mode, r.spp, r.noise
+        );
+    }
     let t = Table(&[
         ("scene", -9),
         ("mode", -5),
+        ("sampler", -12),
         ("spp", 5),
         ("ms", 10),
         ("RMSE", 10),
@@ -227,10 +354,32 @@ fn print(report: &Report) {
         t.row(&[
             p.scene.clone(),
             p.mode.clone(),
+            p.sampler.clone(),
             p.spp.to_string(),
             format!("{:.1}", p.ms),
             format!("{:.5}", p.rmse),
             format!("{:.6}", p.rel_mse),
+        ]);
+    }
+    println!();
+    let t = Table(&[
+        ("scene", -9),
+        ("mode", -5),
+        ("sampler", -12),
+        ("to RMSE", 8),
+        ("spp", 8),
+        ("ms", 10),
+    ]);
+    t.header();
+    for r in &report.time_to {
+        let or = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
+        t.row(&[
+            r.scene.clone(),
+            r.mode.clone(),
+            r.sampler.clone(),
+            format!("{}", r.rmse),
+            or(r.spp, 0),
+            or(r.ms, 1),
         ]);
     }
     println!();
@@ -260,8 +409,9 @@ fn print(report: &Report) {
 }
 
 /// RMSE against spp (left) and against time (right), log-log, one colour per scene and mode:
-/// rm/ao red, rm/path orange, assembly/ao blue, assembly/path cyan. Grid lines at powers of 10
-/// (error) and 2 (spp) or 10 (ms).
+/// rm/ao red, rm/path orange, assembly/ao blue, assembly/path cyan; the Sobol' sampler with
+/// filled squares, the independent one in a lighter shade with hollow squares. Grid lines at
+/// powers of 10 (error) and 2 (spp) or 10 (ms).
 fn plot(points: &[Point], path: &Path) -> Result<()> {
     use image::{Rgb, RgbImage};
     let (pw, ph, m) = (400u32, 300u32, 20u32);
@@ -313,18 +463,30 @@ fn plot(points: &[Point], path: &Path) -> Result<()> {
             }
             gy += 1.0;
         }
-        for (scene, mode, c) in series {
+        for ((scene, mode, full), sampler) in series
+            .into_iter()
+            .flat_map(|s| ["sobol", "independent"].map(|m| (s, m)))
+        {
+            let hollow = sampler != "sobol";
+            let c = if hollow {
+                Rgb(full.0.map(|v| v / 2 + 128))
+            } else {
+                full
+            };
             let pts: Vec<(u32, u32)> = points
                 .iter()
-                .filter(|p| p.scene == scene && p.mode == mode)
+                .filter(|p| p.scene == scene && p.mode == mode && p.sampler == sampler)
                 .map(|p| (px(xv(p)), py(p.rmse.max(1e-6).log10())))
                 .collect();
             for w in pts.windows(2) {
                 line(&mut img, w[0], w[1], c);
             }
             for &(x, y) in &pts {
-                for dx in 0..5 {
-                    for dy in 0..5 {
+                for dx in 0..5u32 {
+                    for dy in 0..5u32 {
+                        if hollow && (1..4).contains(&dx) && (1..4).contains(&dy) {
+                            continue;
+                        }
                         let (xx, yy) = ((x + dx).saturating_sub(2), (y + dy).saturating_sub(2));
                         if xx < 2 * pw && yy < ph {
                             img.put_pixel(xx, yy, c);
