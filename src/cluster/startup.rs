@@ -290,7 +290,7 @@ fn disagreement(all: &[Report], roles: Roles) -> Option<(u32, String)> {
 mod tests {
     use super::*;
 
-    fn words(size: [u32; 3], mode: u32, rest: [u32; 4], model: [u32; 4]) -> Report {
+    fn words(size: [u32; 3], mode: u32, rest: [u32; 5], model: [u32; 4]) -> Report {
         let mut r = [0; WORDS];
         r[OPENED] = 1;
         r[SIZE].copy_from_slice(&size);
@@ -304,7 +304,7 @@ mod tests {
     fn the_rank_that_differs_is_named() {
         let roles = Roles::new(4).unwrap();
         let size = [64, 48, 2];
-        let rest = [1, 0, 7, 9];
+        let rest = [1, 0, 0, 7, 9];
         let ok = words(size, 0, rest, [0xaa, 0xbb, 3, 4]);
         let coord = words(size, 0, rest, [0; 4]);
         assert_eq!(disagreement(&[coord, coord, ok, ok], roles), None);
@@ -318,18 +318,24 @@ mod tests {
             ),
             (
                 words(size, 2, rest, [0xaa, 0xbb, 3, 4]),
-                "rank 3 renders --mode ao --spp 1 --seed 0, rank 0 --mode cast --spp 1 --seed 0",
+                "rank 3 renders --mode ao --spp 1 --seed 0 --sampler sobol, rank 0 --mode cast \
+                 --spp 1 --seed 0 --sampler sobol",
             ),
             (
-                words(size, 0, [4, 0, 7, 9], [0xaa, 0xbb, 3, 4]),
+                words(size, 0, [4, 0, 0, 7, 9], [0xaa, 0xbb, 3, 4]),
                 "rank 3 renders --mode cast --spp 4",
             ),
             (
-                words(size, 0, [1, 0, 8, 9], [0xaa, 0xbb, 3, 4]),
+                words(size, 0, [1, 0, 1, 7, 9], [0xaa, 0xbb, 3, 4]),
+                "rank 3 renders --mode cast --spp 1 --seed 0 --sampler independent, rank 0 \
+                 --mode cast --spp 1 --seed 0 --sampler sobol",
+            ),
+            (
+                words(size, 0, [1, 0, 0, 8, 9], [0xaa, 0xbb, 3, 4]),
                 "rank 3's shading settings",
             ),
             (
-                words(size, 0, [1, 0, 7, 1], [0xaa, 0xbb, 3, 4]),
+                words(size, 0, [1, 0, 0, 7, 1], [0xaa, 0xbb, 3, 4]),
                 "rank 3's exposure, background or AOVs",
             ),
             (
