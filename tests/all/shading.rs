@@ -10,7 +10,7 @@ use dcrt::reference::shade::reference_image;
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
-use dcrt::shading::{Light, Mode, Shading};
+use dcrt::shading::{Light, Mode, Sampler, Shading};
 
 /// A closed lat-long sphere of radius about 1 at the origin; `bump` > 0 makes it non-convex.
 fn sphere(rings: u32, segs: u32, bump: f32) -> Model {
@@ -379,6 +379,20 @@ fn same_seed_same_bits_other_seed_other_image() {
             bits(&a) != bits(&c),
             "{mode:?}: the seed changes the samples"
         );
+        let independent = Shading {
+            sampler: Sampler::Independent,
+            ..sh
+        };
+        let d = shaded(&p, &cam, 24, 24, independent);
+        assert!(
+            bits(&a) != bits(&d),
+            "{mode:?}: the sampler changes the samples"
+        );
+        let e = shaded(&p, &cam, 24, 24, independent);
+        assert!(
+            bits(&d) == bits(&e),
+            "{mode:?}: independent, different bits"
+        );
     }
 }
 
@@ -436,6 +450,10 @@ fn bad_shading_input_is_a_clear_error() {
         (vec!["--spp".into(), "0".into()], "--spp must be 1..="),
         (vec!["--ao-rays".into(), "0".into()], "--ao-rays must be"),
         (
+            vec!["--sampler".into(), "halton".into()],
+            "invalid value 'halton'",
+        ),
+        (
             vec!["--exposure".into(), "nan".into()],
             "--exposure must be finite",
         ),
@@ -462,6 +480,10 @@ fn bad_shading_input_is_a_clear_error() {
         ("[[light]]\ntype = \"spot\"\n", "unknown variant `spot`"),
         ("[render]\nmode = \"raster\"\n", "unknown variant `raster`"),
         ("[render]\nspp = 0\n", "spp must be 1..="),
+        (
+            "[render]\nsampler = \"halton\"\n",
+            "unknown variant `halton`",
+        ),
     ];
     for (text, want) in scenes {
         let s = scene(text);
