@@ -29,7 +29,8 @@ struct Stats {
     // chapter's "traversal steps per block".
     node_visits: atomic<u32>,
     block_entries: atomic<u32>,
-    unused0: u32,
+    // Triangle reads from another triangle block than the ray's previous one.
+    tri_block_entries: atomic<u32>,
     unused1: u32,
     unused2: u32,
 }
@@ -43,6 +44,7 @@ var<workgroup> wg_hits: atomic<u32>;
 var<workgroup> wg_misses: atomic<u32>;
 var<workgroup> wg_visits: atomic<u32>;
 var<workgroup> wg_entries: atomic<u32>;
+var<workgroup> wg_tri_entries: atomic<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -84,6 +86,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var visits = 0u;
         var entries = 0u;
         var last_block = NONE;
+        var tri_entries = 0u;
+        var last_tri_block = NONE;
         // The node being visited, already read when `have`: a child chosen at its parent is not
         // read twice, and a resumed ray needs only the block it faulted on.
         var cur: Node;
@@ -182,6 +186,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         break;
                     }
                     tests += 1u;
+                    tri_entries += u32(l.x != last_tri_block);
+                    last_tri_block = l.x;
                     let tri = tri_at(row, l.y);
                     let th = intersect(tri, org, sh, r.t, camera);
                     if th.t > 0.0 {
@@ -238,6 +244,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&wg_steps, iters);
         atomicAdd(&wg_visits, visits);
         atomicAdd(&wg_entries, entries);
+        atomicAdd(&wg_tri_entries, tri_entries);
         atomicAdd(&wg_tris, tests);
         if suspended {
             atomicAdd(&wg_suspended, 1u);
@@ -256,6 +263,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
         atomicAdd(&stats.node_visits, atomicLoad(&wg_visits));
         atomicAdd(&stats.block_entries, atomicLoad(&wg_entries));
+        atomicAdd(&stats.tri_block_entries, atomicLoad(&wg_tri_entries));
         if DC {
             atomicAdd(&stats.lookups, atomicLoad(&wg_lookups));
             atomicAdd(&stats.hits, atomicLoad(&wg_hits));
