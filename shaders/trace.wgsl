@@ -12,8 +12,9 @@
 #import offset
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
-// Per ray `stack_size` entries of (node, entry distance bits).
-@group(1) @binding(1) var<storage, read_write> stacks: array<vec2<u32>>;
+// Per ray `stack_size` entries of (index, count, entry distance bits, node): the content of the
+// node pushed, read with its sibling, so that a pop needs no block read.
+@group(1) @binding(1) var<storage, read_write> stacks: array<vec4<u32>>;
 @group(1) @binding(2) var<storage, read> live_in: array<u32>;
 @group(1) @binding(3) var<storage, read> counter_in: array<u32, 4>;
 // Mirrors gpu::layout::Stats.
@@ -29,11 +30,15 @@ struct Stats {
     // chapter's "traversal steps per block".
     node_visits: atomic<u32>,
     block_entries: atomic<u32>,
-    unused0: u32,
+    // Triangle reads from another triangle block than the ray's previous one.
+    tri_block_entries: atomic<u32>,
     unused1: u32,
     unused2: u32,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
+
+// Stack entries held in registers (s0..s3 in main).
+const SHORT_STACK: u32 = 4u;
 
 var<workgroup> wg_steps: atomic<u32>;
 var<workgroup> wg_tris: atomic<u32>;
@@ -43,6 +48,7 @@ var<workgroup> wg_hits: atomic<u32>;
 var<workgroup> wg_misses: atomic<u32>;
 var<workgroup> wg_visits: atomic<u32>;
 var<workgroup> wg_entries: atomic<u32>;
+var<workgroup> wg_tri_entries: atomic<u32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -84,9 +90,28 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var visits = 0u;
         var entries = 0u;
         var last_block = NONE;
+        var tri_entries = 0u;
+        // The closest hit found in this round: where its triangle is and its barycentrics. Its
+        // normal, point and error are computed once, after the loop: block rows do not change
+        // during a dispatch, and a CPU driver runs a branch's code in every iteration however
+        // few lanes take it.
+        var found = false;
+        var hit_row = 0u;
+        var hit_slot = 0u;
+        var hit_b = vec3(0.0);
+        var last_tri_block = NONE;
         // The node being visited, already read when `have`: a child chosen at its parent is not
         // read twice, and a resumed ray needs only the block it faulted on.
         var cur: Node;
+        // The top of the stack in four named registers, s0 the top: on a CPU driver a
+        // dynamically indexed buffer is a per-lane gather or scatter loop, a select is not. The
+        // global stack takes an entry only when a fifth is pushed, and the registers at the end
+        // of the round; a round starts with them empty and pops from the global stack.
+        var nreg = 0u;
+        var s0 = vec4(0u);
+        var s1 = vec4(0u);
+        var s2 = vec4(0u);
+        var s3 = vec4(0u);
         var have = r.cur_count != NONE;
         cur.index = r.cur_index;
         cur.count = r.cur_count;
@@ -101,13 +126,24 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
                 iters += 1u;
                 r.sp -= 1u;
-                let e = stacks[base + r.sp];
-                // Entries farther than the closest hit found since they were pushed are culled.
-                if bitcast<f32>(e.y) <= r.t {
-                    r.node = e.x;
-                    have = false;
+                var e = s0;
+                if nreg == 0u {
+                    e = stacks[base + r.sp];
+                } else {
+                    nreg -= 1u;
+                    s0 = s1;
+                    s1 = s2;
+                    s2 = s3;
                 }
-                continue;
+                // Entries farther than the closest hit found since they were pushed are culled.
+                if !(bitcast<f32>(e.z) <= r.t) {
+                    continue;
+                }
+                // The entry holds the node's content: it is visited in this same iteration.
+                r.node = e.w;
+                cur.index = e.x;
+                cur.count = e.y;
+                have = true;
             }
             if iters >= params.step_budget {
                 break;
@@ -146,8 +182,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.status = OVERFLOW;
                         break;
                     }
-                    let far = select(cur.index, cur.index + 1u, a_first);
-                    stacks[base + r.sp] = vec2(far, bitcast<u32>(select(ta, tb, a_first)));
+                    let far = select(vec2(a.index, a.count), vec2(b.index, b.count), a_first);
+                    let far_node = select(cur.index, cur.index + 1u, a_first);
+                    if nreg == SHORT_STACK {
+                        stacks[base + r.sp - SHORT_STACK] = s3;
+                    } else {
+                        nreg += 1u;
+                    }
+                    s3 = s2;
+                    s2 = s1;
+                    s1 = s0;
+                    s0 = vec4(far, bitcast<u32>(select(ta, tb, a_first)), far_node);
                     r.sp += 1u;
                     if a_first {
                         r.node = cur.index;
@@ -182,24 +227,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         break;
                     }
                     tests += 1u;
+                    tri_entries += u32(l.x != last_tri_block);
+                    last_tri_block = l.x;
                     let tri = tri_at(row, l.y);
                     let th = intersect(tri, org, sh, r.t, camera);
                     if th.t > 0.0 {
                         r.t = th.t;
                         r.hit = cur.index + k;
-                        let n = unit_normal(tri);
-                        r.nx = n.x;
-                        r.ny = n.y;
-                        r.nz = n.z;
-                        let p = hit_point(tri, th.b);
-                        r.hx = p.x;
-                        r.hy = p.y;
-                        r.hz = p.z;
-                        // Past the point's error along the normal, and along any normal the
-                        // exact one may be (a sliver's computed normal is off by up to a radian).
-                        let e = hit_point_error(tri, th.b);
-                        r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
-                        r.prim = prim_id_at(row, l.y);
+                        found = true;
+                        hit_row = row;
+                        hit_slot = l.y;
+                        hit_b = th.b;
                         // Shadow and occlusion rays need any hit, not the closest.
                         if (r.flags & ANY_HIT) != 0u {
                             stop = true;
@@ -211,6 +249,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     r.status = DONE;
                     r.node = NONE;
                     r.sp = 0u;
+                    nreg = 0u;
                     have = false;
                     break;
                 }
@@ -223,6 +262,35 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 r.node = NONE;
                 have = false;
             }
+        }
+        if found {
+            let tri = tri_at(hit_row, hit_slot);
+            let n = unit_normal(tri);
+            r.nx = n.x;
+            r.ny = n.y;
+            r.nz = n.z;
+            let p = hit_point(tri, hit_b);
+            r.hx = p.x;
+            r.hy = p.y;
+            r.hz = p.z;
+            // Past the point's error along the normal, and along any normal the exact one may
+            // be (a sliver's computed normal is off by up to a radian).
+            let e = hit_point_error(tri, hit_b);
+            r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
+            r.prim = prim_id_at(hit_row, hit_slot);
+        }
+        // The registers go back to their places in the global stack for the next round.
+        if nreg > 0u {
+            stacks[base + r.sp - 1u] = s0;
+        }
+        if nreg > 1u {
+            stacks[base + r.sp - 2u] = s1;
+        }
+        if nreg > 2u {
+            stacks[base + r.sp - 3u] = s2;
+        }
+        if nreg > 3u {
+            stacks[base + r.sp - 4u] = s3;
         }
         if !valid {
             r.status = OUTSIDE;
@@ -238,6 +306,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&wg_steps, iters);
         atomicAdd(&wg_visits, visits);
         atomicAdd(&wg_entries, entries);
+        atomicAdd(&wg_tri_entries, tri_entries);
         atomicAdd(&wg_tris, tests);
         if suspended {
             atomicAdd(&wg_suspended, 1u);
@@ -256,6 +325,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
         atomicAdd(&stats.node_visits, atomicLoad(&wg_visits));
         atomicAdd(&stats.block_entries, atomicLoad(&wg_entries));
+        atomicAdd(&stats.tri_block_entries, atomicLoad(&wg_tri_entries));
         if DC {
             atomicAdd(&stats.lookups, atomicLoad(&wg_lookups));
             atomicAdd(&stats.hits, atomicLoad(&wg_hits));

@@ -9,8 +9,8 @@ use std::mem::size_of;
 
 /// 8x8 tiles of rays.
 pub const TILE_RAYS: u32 = crate::mirror::tiles::TILE * crate::mirror::tiles::TILE;
-/// Bytes of one traversal stack entry: (node, entry distance bits).
-const STACK_ENTRY_BYTES: u64 = 8;
+/// Bytes of one traversal stack entry: (index, count, entry distance bits, node).
+const STACK_ENTRY_BYTES: u64 = 16;
 
 pub struct Batch {
     /// Rays a batch holds (whole tiles).

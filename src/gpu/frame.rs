@@ -38,6 +38,8 @@ pub struct FrameStats {
     /// Inner-node visits and node-block entries (a visit in another block than the previous).
     pub node_visits: u64,
     pub block_entries: u64,
+    /// Triangle reads from another triangle block than the ray's previous one.
+    pub tri_block_entries: u64,
     /// Samples per pixel traced; secondary rays spawned; rays that entered traversal (primary
     /// rays culled by the model's box and rays not needed do not).
     pub samples: u32,

@@ -152,7 +152,9 @@ pub struct Stats {
     /// Inner-node visits, and how many of them moved to another node block than the previous.
     pub node_visits: u32,
     pub block_entries: u32,
-    pub unused: [u32; 3],
+    /// Triangle reads from another triangle block than the ray's previous one.
+    pub tri_block_entries: u32,
+    pub unused: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<Stats>() == 48);
 

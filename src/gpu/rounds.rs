@@ -149,6 +149,7 @@ impl Tracer<'_> {
                 stats.misses += u64::from(s.misses);
                 stats.node_visits += u64::from(s.node_visits);
                 stats.block_entries += u64::from(s.block_entries);
+                stats.tri_block_entries += u64::from(s.tri_block_entries);
                 stats.max_live_rounds = stats.max_live_rounds.max(live_rounds);
                 return Ok(started.unwrap_or(0));
             }

@@ -34,8 +34,8 @@ pub const TILE: u32 = crate::mirror::tiles::TILE;
 pub const MAX_STEP_BUDGET: u32 = 60_000;
 pub const DEFAULT_STEP_BUDGET: u32 = 4096;
 /// Deeper BVHs than this get this many stack entries, and a ray that would overflow is reported
-/// as an error rather than traced wrongly. 8 bytes an entry: a stack this deep still leaves room
-/// for 4096 rays a batch in a 128 MiB storage buffer.
+/// as an error rather than traced wrongly. 16 bytes an entry: a stack this deep still leaves room
+/// for 2048 rays a batch in a 128 MiB storage buffer.
 pub const MAX_STACK: u32 = 4096;
 const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
 const WORKGROUP: u32 = 64;

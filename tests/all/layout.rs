@@ -228,7 +228,7 @@ fn host_structs_match_naga_layouts() {
         "steps" => steps, "tri_tests" => tri_tests, "overflows" => overflows,
         "suspended" => suspended, "lookups" => lookups, "hits" => hits, "misses" => misses,
         "node_visits" => node_visits, "block_entries" => block_entries,
-        "unused0" => unused, "unused1" => unused + 4, "unused2" => unused + 8,
+        "tri_block_entries" => tri_block_entries, "unused1" => unused, "unused2" => unused + 4,
     });
     sized(w, size_of::<Stats>());
     // The fault list follows the header.

@@ -278,6 +278,14 @@ struct BenchArgs {
     /// One JSON object on stdout instead of the table.
     #[arg(long)]
     json: bool,
+    /// Shading modes to measure rays/s in (primary and secondary rays over the frame time);
+    /// `ao` traces 4 rays per hit and `path` at most 3 bounces, to keep a frame short.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "cast")]
+    modes: Vec<Mode>,
+    /// Also trace the same camera rays with a native peer on every core, in the same run, and
+    /// report both rates, their ratio and how often the hits agree (`scripts/embree-peer.sh`).
+    #[arg(long, value_enum)]
+    peer: Option<bench::Peer>,
     /// Distributed-cache sweep: replicated against caches of 1/32..1/1 with both mappings, over
     /// an orbit of --frames frames as rank --rank of --virtual-ranks.
     #[arg(long)]

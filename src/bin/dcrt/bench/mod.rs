@@ -7,6 +7,8 @@ mod dc;
 pub mod shading;
 mod trace;
 
+pub use trace::Peer;
+
 use crate::BenchArgs;
 use crate::checks::check_budget;
 use anyhow::{Context, Result, bail};

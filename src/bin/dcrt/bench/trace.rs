@@ -1,32 +1,77 @@
-//! `dcrt bench`: BVH build time and primary-ray throughput, per obvhs preset and block store.
+//! `dcrt bench`: BVH build time and ray throughput per obvhs preset, block store and shading
+//! mode, with the traversal's counts (steps, node visits per node block, blocks entered), and
+//! optionally a native peer tracing the same camera rays in the same run (`--peer embree`).
 
 use super::{Table, emit, frame_stats, median};
 use crate::{BenchArgs, settings};
-use anyhow::Result;
+use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::Settings;
+use dcrt::gpu::tracer::{Settings, Tracer};
 use dcrt::render::Prepared;
 use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
+use dcrt::shading::{Mode, Shading};
+use std::path::{Path, PathBuf};
+
+/// A native tracer run beside dcrt on the same cores (`--peer`).
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Peer {
+    /// Embree 3 (`rtcIntersect8` packets, a thread per core) through `scripts/embree-peer.sh`.
+    Embree,
+}
+
+/// The bench's AO rays per hit and path bounces: enough secondary rays to measure, few enough
+/// that a 1024x1024 frame stays short on a CPU adapter.
+const BENCH_AO_RAYS: u32 = 4;
+const BENCH_MAX_DEPTH: u32 = 3;
 
 #[derive(serde::Serialize)]
 struct BenchRow {
     preset: String,
     store: Store,
+    mode: Mode,
     bvh_build_ms: f64,
     bvh_depth: u32,
     trace_ms_median: f64,
     trace_ms_min: f64,
     trace_ms_max: f64,
+    /// Primary and secondary rays of one frame, over its median time.
+    rays: u64,
     mrays_per_s: f64,
+    /// Per ray of `rays` (primary rays culled by the model's box count, with 0 steps).
     steps_per_ray: f64,
     tri_tests_per_ray: f64,
+    /// Inner-node visits per node block entered, and node and triangle blocks entered per ray
+    /// (an entry is a read from another block than the ray's previous one of its kind).
+    nodes_per_node_block: f64,
+    node_blocks_per_ray: f64,
+    tri_blocks_per_ray: f64,
     /// Of the last run: share of the frame in raygen + trace rounds, and in shade + readback.
     trace_share: f64,
     shade_share: f64,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PeerReport {
+    peer: String,
+    threads: u32,
+    build_ms: f64,
+    trace_ms_median: f64,
+    trace_ms_min: f64,
+    trace_ms_max: f64,
+    mrays_per_s: f64,
+    /// dcrt's primary-ray rate (the main row) over the peer's.
+    #[serde(default)]
+    ratio: f64,
+    /// Pixels where dcrt and the peer agree on hit or miss and on the primitive id; pixels where
+    /// they agree on hit or miss.
+    #[serde(default)]
+    hit_agreement: f64,
+    #[serde(default)]
+    hit_miss_agreement: f64,
 }
 
 #[derive(serde::Serialize)]
@@ -41,7 +86,21 @@ struct BenchReport {
     bvh_build_ms: f64,
     trace_ms_median: f64,
     mrays_per_s: f64,
+    steps_per_ray: f64,
+    nodes_per_node_block: f64,
+    node_blocks_per_ray: f64,
+    tri_blocks_per_ray: f64,
+    peer: Option<PeerReport>,
     rows: Vec<BenchRow>,
+}
+
+fn shading_for(mode: Mode) -> Shading {
+    Shading {
+        mode,
+        ao_rays: BENCH_AO_RAYS,
+        max_depth: BENCH_MAX_DEPTH,
+        ..Shading::default()
+    }
 }
 
 pub fn run(
@@ -63,12 +122,17 @@ pub fn run(
         vec![a.gpu.bvh_preset]
     };
     let mut rows = Vec::new();
-    let rays = f64::from(a.width) * f64::from(a.height);
     let stores = if a.stores {
         Store::ALL.to_vec()
     } else {
         vec![a.gpu.store]
     };
+    let modes = if a.modes.is_empty() {
+        vec![Mode::Cast]
+    } else {
+        a.modes.clone()
+    };
+    let mut peer_ids = None;
     for preset in presets {
         let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
         for &store in &stores {
@@ -77,41 +141,42 @@ pub fn run(
                 ..settings(&a.gpu)
             };
             let mut tracer = prepared.tracer(gpu, s)?;
-            // A warm-up frame (pipeline compilation and first-touch of buffers), then the runs.
-            let frames = u32::try_from(a.runs).map_or(u32::MAX, |r| r.saturating_add(1));
-            let size = (a.width, a.height);
-            let runs = frame_stats(
-                &mut tracer,
-                View::Fixed(camera),
-                frames,
-                size,
-                scene.background,
-            )?;
-            let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
-            let s = runs.last().cloned().unwrap_or_default();
-            let med = median(&mut times);
-            rows.push(BenchRow {
-                preset: format!("{preset:?}").to_lowercase(),
-                store,
-                bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
-                bvh_depth: prepared.bvh.depth,
-                trace_ms_median: med,
-                trace_ms_min: times[0],
-                trace_ms_max: times[times.len() - 1],
-                mrays_per_s: rays / (med * 1e-3) / 1e6,
-                steps_per_ray: s.steps as f64 / rays,
-                tri_tests_per_ray: s.tri_tests as f64 / rays,
-                trace_share: s.trace_seconds / s.seconds,
-                shade_share: s.shade_seconds / s.seconds,
-            });
+            for &mode in &modes {
+                tracer.set_shading(shading_for(mode))?;
+                rows.push(measure(
+                    a,
+                    &mut tracer,
+                    scene,
+                    camera,
+                    (&prepared, preset),
+                    store,
+                    mode,
+                )?);
+            }
+            if a.peer.is_some() && preset == a.gpu.bvh_preset && store == a.gpu.store {
+                tracer.set_shading(shading_for(Mode::Cast))?;
+                let (frame, _) =
+                    tracer.render(&camera.basis(a.width, a.height), scene.background)?;
+                peer_ids = Some(frame.pixels.iter().map(|p| p.id).collect::<Vec<u32>>());
+            }
         }
     }
     let main_row = rows
         .iter()
         .find(|r| {
-            r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase() && r.store == a.gpu.store
+            r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase()
+                && r.store == a.gpu.store
+                && r.mode == modes[0]
         })
         .unwrap_or(&rows[0]);
+    let peer = match (a.peer, peer_ids) {
+        (Some(Peer::Embree), Some(ids)) => {
+            let mut p = embree(a, &model, &camera, &ids)?;
+            p.ratio = main_row.mrays_per_s / p.mrays_per_s;
+            Some(p)
+        }
+        _ => None,
+    };
     let report = BenchReport {
         adapter: gpu.describe(),
         scene: scene.path.display().to_string(),
@@ -123,10 +188,134 @@ pub fn run(
         bvh_build_ms: main_row.bvh_build_ms,
         trace_ms_median: main_row.trace_ms_median,
         mrays_per_s: main_row.mrays_per_s,
+        steps_per_ray: main_row.steps_per_ray,
+        nodes_per_node_block: main_row.nodes_per_node_block,
+        node_blocks_per_ray: main_row.node_blocks_per_ray,
+        tri_blocks_per_ray: main_row.tri_blocks_per_ray,
+        peer,
         rows: Vec::new(),
     };
     let report = BenchReport { rows, ..report };
     emit(a.json, &report, print)
+}
+
+/// One row: a warm-up frame (pipeline compilation, first touch of buffers), then `--runs`.
+fn measure(
+    a: &BenchArgs,
+    tracer: &mut Tracer<'_>,
+    scene: &Scene,
+    camera: Camera,
+    (prepared, preset): (&Prepared, Preset),
+    store: Store,
+    mode: Mode,
+) -> Result<BenchRow> {
+    let frames = u32::try_from(a.runs).map_or(u32::MAX, |r| r.saturating_add(1));
+    let size = (a.width, a.height);
+    let runs = frame_stats(tracer, View::Fixed(camera), frames, size, scene.background)?;
+    let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
+    let s = runs.last().cloned().unwrap_or_default();
+    let med = median(&mut times);
+    let rays = s.rays + s.secondary_rays;
+    let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
+    Ok(BenchRow {
+        preset: format!("{preset:?}").to_lowercase(),
+        store,
+        mode,
+        bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
+        bvh_depth: prepared.bvh.depth,
+        trace_ms_median: med,
+        trace_ms_min: times[0],
+        trace_ms_max: times[times.len() - 1],
+        rays,
+        mrays_per_s: rays as f64 / (med * 1e-3) / 1e6,
+        steps_per_ray: per_ray(s.steps),
+        tri_tests_per_ray: per_ray(s.tri_tests),
+        nodes_per_node_block: s.node_visits as f64 / s.block_entries.max(1) as f64,
+        node_blocks_per_ray: per_ray(s.block_entries),
+        tri_blocks_per_ray: per_ray(s.tri_block_entries),
+        trace_share: s.trace_seconds / s.seconds,
+        shade_share: s.shade_seconds / s.seconds,
+    })
+}
+
+/// The peer script: `DCRT_EMBREE_PEER`, else `scripts/embree-peer.sh` under the current
+/// directory, else in the source tree the binary was built from.
+fn peer_script() -> Result<PathBuf> {
+    if let Some(p) = std::env::var_os("DCRT_EMBREE_PEER") {
+        return Ok(PathBuf::from(p));
+    }
+    let candidates = [
+        PathBuf::from("scripts/embree-peer.sh"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/embree-peer.sh"),
+    ];
+    candidates
+        .into_iter()
+        .find(|p| p.is_file())
+        .context("--peer embree: scripts/embree-peer.sh not found (run from the source tree or set DCRT_EMBREE_PEER)")
+}
+
+/// Writes the model and the camera to a temporary folder, runs the Embree peer on it and
+/// compares its primitive ids with dcrt's (`ids`, one per pixel).
+fn embree(a: &BenchArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<PeerReport> {
+    let script = peer_script()?;
+    let dir = std::env::temp_dir().join(format!("dcrt-peer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let result = (|| {
+        let n = u32::try_from(model.triangles.len()).context("too many triangles for the peer")?;
+        let mut mesh = Vec::with_capacity(4 + model.triangles.len() * 36);
+        mesh.extend_from_slice(&n.to_le_bytes());
+        for v in model.triangles.iter().flatten().flatten() {
+            mesh.extend_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(dir.join("mesh.bin"), mesh)?;
+        let b = camera.basis(a.width, a.height);
+        let v = |x: [f32; 3]| format!("{:e} {:e} {:e}", x[0], x[1], x[2]);
+        let cam = format!(
+            "{} {} {}\n{}\n{}\n{}\n{}\n",
+            a.width,
+            a.height,
+            a.runs,
+            v(b.origin),
+            v(b.forward),
+            v(b.right),
+            v(b.up)
+        );
+        std::fs::write(dir.join("camera.txt"), cam)?;
+        let out = std::process::Command::new("bash")
+            .arg(&script)
+            .arg(&dir)
+            .stderr(std::process::Stdio::inherit())
+            .output()
+            .with_context(|| format!("running {}", script.display()))?;
+        if !out.status.success() {
+            bail!("{} failed ({})", script.display(), out.status);
+        }
+        let line = String::from_utf8_lossy(&out.stdout);
+        let mut p: PeerReport = serde_json::from_str(line.trim())
+            .with_context(|| format!("{}: unexpected output {line:?}", script.display()))?;
+        let hits = std::fs::read(dir.join("hits.bin"))?;
+        if hits.len() != ids.len() * 4 {
+            bail!(
+                "{}: {} bytes of hits for {} pixels",
+                script.display(),
+                hits.len(),
+                ids.len()
+            );
+        }
+        let theirs = hits
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+        let (mut same, mut same_kind) = (0u64, 0u64);
+        for (&mine, other) in ids.iter().zip(theirs) {
+            same += u64::from(mine == other);
+            same_kind += u64::from((mine == u32::MAX) == (other == u32::MAX));
+        }
+        p.hit_agreement = same as f64 / ids.len() as f64;
+        p.hit_miss_agreement = same_kind as f64 / ids.len() as f64;
+        Ok(p)
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    result
 }
 
 fn print(report: &BenchReport) {
@@ -138,30 +327,56 @@ fn print(report: &BenchReport) {
     let t = Table(&[
         ("preset", -9),
         ("store", -8),
-        ("build ms", 10),
-        ("depth", 6),
-        ("trace ms", 12),
-        ("min", 10),
-        ("max", 10),
-        ("Mrays/s", 9),
+        ("mode", -5),
+        ("build ms", 9),
+        ("depth", 5),
+        ("trace ms", 9),
+        ("min", 8),
+        ("max", 8),
+        ("Mrays/s", 8),
         ("steps/ray", 9),
-        ("trace%", 7),
-        ("shade%", 7),
+        ("nodes/blk", 9),
+        ("nblk/ray", 8),
+        ("tblk/ray", 8),
+        ("trace%", 6),
+        ("shade%", 6),
     ]);
     t.header();
     for r in &report.rows {
         t.row(&[
             r.preset.clone(),
             format!("{:?}", r.store).to_lowercase(),
+            format!("{:?}", r.mode).to_lowercase(),
             format!("{:.1}", r.bvh_build_ms),
             r.bvh_depth.to_string(),
             format!("{:.1}", r.trace_ms_median),
             format!("{:.1}", r.trace_ms_min),
             format!("{:.1}", r.trace_ms_max),
-            format!("{:.2}", r.mrays_per_s),
+            format!("{:.3}", r.mrays_per_s),
             format!("{:.1}", r.steps_per_ray),
+            format!("{:.2}", r.nodes_per_node_block),
+            format!("{:.2}", r.node_blocks_per_ray),
+            format!("{:.2}", r.tri_blocks_per_ray),
             format!("{:.0}", r.trace_share * 100.0),
             format!("{:.0}", r.shade_share * 100.0),
         ]);
+    }
+    if let Some(p) = &report.peer {
+        println!(
+            "peer      {} on {} threads: build {:.1} ms, trace {:.1} ms (min {:.1}, max {:.1}), \
+             {:.3} Mrays/s",
+            p.peer,
+            p.threads,
+            p.build_ms,
+            p.trace_ms_median,
+            p.trace_ms_min,
+            p.trace_ms_max,
+            p.mrays_per_s
+        );
+        println!(
+            "ratio     dcrt / peer = {:.3} (primary rays); hits agree on {:.4} of pixels (hit or \
+             miss: {:.4})",
+            p.ratio, p.hit_agreement, p.hit_miss_agreement
+        );
     }
 }
