@@ -142,25 +142,25 @@ impl FrameTrace {
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
         let io = |e| Error::io(&path, e);
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&path).map_err(io)?);
-        for r in &self.rounds {
-            serde_json::to_writer(&mut w, &Record::Round(r))
+        crate::output::write_record(&path, |w| {
+            for r in &self.rounds {
+                serde_json::to_writer(&mut *w, &Record::Round(r))
+                    .map_err(|e| Error::Invalid(e.to_string()))?;
+                w.write_all(b"\n").map_err(io)?;
+            }
+            for e in &self.events {
+                serde_json::to_writer(&mut *w, e).map_err(|e| Error::Invalid(e.to_string()))?;
+                w.write_all(b"\n").map_err(io)?;
+            }
+            let frame = FrameRecord {
+                version: VERSION,
+                run: run(),
+                summary: &self.summary,
+            };
+            serde_json::to_writer(&mut *w, &Record::Frame(frame))
                 .map_err(|e| Error::Invalid(e.to_string()))?;
-            w.write_all(b"\n").map_err(io)?;
-        }
-        for e in &self.events {
-            serde_json::to_writer(&mut w, e).map_err(|e| Error::Invalid(e.to_string()))?;
-            w.write_all(b"\n").map_err(io)?;
-        }
-        let frame = FrameRecord {
-            version: VERSION,
-            run: run(),
-            summary: &self.summary,
-        };
-        serde_json::to_writer(&mut w, &Record::Frame(frame))
-            .map_err(|e| Error::Invalid(e.to_string()))?;
-        w.write_all(b"\n").map_err(io)?;
-        w.flush().map_err(io)?;
+            w.write_all(b"\n").map_err(io)
+        })?;
         Ok(path)
     }
 }

@@ -331,6 +331,15 @@ struct BenchArgs {
 fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    // An interrupted command leaves none of its outputs (docs/ARCHITECTURE.md, Outputs).
+    let grace = match dcrt::cluster::launched_ranks() {
+        Some(k) if k > 1 => std::time::Duration::from_millis(500),
+        _ => std::time::Duration::ZERO,
+    };
+    if let Err(e) = dcrt::output::remove_on_interrupt(grace) {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     let result = match cli.command {
         Command::Render(a) => render::render(a),
         Command::Info { adapter } => info::info(adapter.as_deref()),
@@ -407,6 +416,7 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         display_bench: c.display_bench,
         stats: c.stats.clone(),
     };
-    dcrt::cluster::run(&opts)?;
+    // A failed job leaves none of the frames this rank wrote, as in one process.
+    dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;
     Ok(())
 }

@@ -12,7 +12,7 @@ use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
 use dcrt::render::{Loaded, mib};
 use dcrt::scene::{Scene, check_image_size};
 use dcrt::shading::Shading;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub fn render(a: RenderArgs) -> Result<()> {
     check_budget(a.gpu.step_budget)?;
@@ -72,17 +72,10 @@ pub fn render(a: RenderArgs) -> Result<()> {
 /// atomically; if the run fails, the files it has written are removed, so a failed run leaves
 /// nothing half done.
 fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
-    let mut written = Vec::new();
-    let done = frames_of(a, format, &mut written);
-    if done.is_err() {
-        for p in &written {
-            let _ = std::fs::remove_file(p);
-        }
-    }
-    done
+    frames_of(a, format).inspect_err(|_| output::remove_written())
 }
 
-fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Result<()> {
+fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let mut report = Vec::new();
@@ -143,11 +136,9 @@ fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Resu
             );
             let png = numbered(&a.output);
             output::write_png_exposed(&png, &frame, a.exposure)?;
-            written.push(png.clone());
             if let Some(exr) = &a.exr {
                 let exr = numbered(exr);
                 output::write_exr(&exr, &frame, &a.aov)?;
-                written.push(exr);
             }
             eprintln!(
                 "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
@@ -182,7 +173,6 @@ fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Resu
         let all =
             serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});
         output::write_bytes(path, all.to_string().as_bytes())?;
-        written.push(path.clone());
     }
     Ok(())
 }
