@@ -293,6 +293,11 @@ struct BenchArgs {
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Memory soak: render an orbit of this many frames in one process (rank --rank of
+    /// --virtual-ranks with the first of --caches, `none` replicating) and report resident
+    /// memory at intervals and its slope in bytes per frame.
+    #[arg(long)]
+    soak: Option<u32>,
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,
