@@ -7,35 +7,134 @@ use crate::gpu::tracer::Frame;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 
 /// Writes `path` through a temporary file beside it: `fill` writes the contents, then the file is
 /// flushed, fsynced and renamed into place. On any error the temporary file is removed and what
 /// was at `path` before stays. A `path` that exists but is not a regular file (a device, a FIFO,
-/// a directory) is refused: renaming over it would replace the node itself.
+/// a directory) is refused: renaming over it would replace the node itself. The file is one of
+/// this run's outputs: `remove_written` and an interruption (`remove_on_interrupt`) remove it.
 pub fn write_atomic(
     path: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    write_file(path, true, fill)
+}
+
+/// Writes a record (a trace file) as `write_atomic` does, but without the fsync, and keeps it
+/// when the run fails or is interrupted: what a run did up to then is worth reading. Readers see
+/// the whole file or none of it.
+pub fn write_record(
+    path: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    write_file(path, false, fill)
+}
+
+/// What this process has written (`done`) and is writing (`partial`): what an interrupted or
+/// failed run removes (docs/ARCHITECTURE.md, Outputs). Held only to create, rename and remove,
+/// never while a file is filled, so an interruption waits for no write.
+struct Written {
+    done: Vec<PathBuf>,
+    partial: Vec<PathBuf>,
+}
+
+static WRITTEN: Mutex<Written> = Mutex::new(Written {
+    done: Vec::new(),
+    partial: Vec::new(),
+});
+
+fn written() -> MutexGuard<'static, Written> {
+    // A panic elsewhere while holding it leaves the lists as they were: still right.
+    WRITTEN.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write_file(
+    path: &Path,
+    output: bool,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
     check_target(path)?;
     let tmp = partial_path(path);
     let io = |e| DcrtError::io(path, e);
-    let file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&tmp)
-        .map_err(|e| DcrtError::io(&tmp, e))?;
-    let done = (|| {
+    let file = {
+        // Created while registered, so an interruption either sees it or precedes it.
+        let mut w = written();
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .map_err(|e| DcrtError::io(&tmp, e))?;
+        w.partial.push(tmp.clone());
+        file
+    };
+    let filled = (|| {
         let mut w = BufWriter::new(file);
         fill(&mut w)?;
         let file = w.into_inner().map_err(|e| io(e.into_error()))?;
-        file.sync_all().map_err(io)?;
-        drop(file);
-        std::fs::rename(&tmp, path).map_err(io)
+        if output {
+            file.sync_all().map_err(io)?;
+        }
+        Ok(())
     })();
-    if done.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    let mut w = written();
+    w.partial.retain(|p| p != &tmp);
+    let done = filled.and_then(|()| std::fs::rename(&tmp, path).map_err(io));
+    match &done {
+        Ok(()) if output => w.done.push(path.to_path_buf()),
+        Ok(()) => {}
+        Err(_) => {
+            let _ = std::fs::remove_file(&tmp);
+        }
     }
     done
+}
+
+/// Removes every output this process has written (a failed run leaves nothing of itself).
+pub fn remove_written() {
+    let mut w = written();
+    for p in w.done.drain(..) {
+        let _ = std::fs::remove_file(p);
+    }
+}
+
+/// Installs the answer to SIGTERM, SIGINT and SIGHUP for a command that writes outputs: a thread
+/// that, on the first of them, removes the run's temporary files and outputs, says so on stderr
+/// and exits with 128 + the signal's number, whatever the rest of the process is doing (a GPU
+/// wait, an MPI call). A file being renamed into place is waited for, so none is left half done.
+/// A process that has written nothing waits `idle_grace` first: an MPI launcher kills every rank
+/// as soon as one has exited, and the rank that writes the frames needs the time to remove them
+/// (docs/ARCHITECTURE.md, Outputs).
+pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
+        .map_err(|e| DcrtError::Internal(format!("cannot install the signal handlers: {e}")))?;
+    std::thread::Builder::new()
+        .name("dcrt-signals".into())
+        .spawn(move || {
+            if let Some(sig) = signals.forever().next() {
+                // Held until the exit: no write starts or finishes after this.
+                let w = written();
+                for p in w.partial.iter().chain(&w.done) {
+                    let _ = std::fs::remove_file(p);
+                }
+                let name = match sig {
+                    SIGTERM => "SIGTERM",
+                    SIGINT => "SIGINT",
+                    _ => "SIGHUP",
+                };
+                eprintln!(
+                    "error: interrupted by {name}; removed the {} output file(s) this run wrote",
+                    w.done.len()
+                );
+                if w.done.is_empty() && w.partial.is_empty() {
+                    std::thread::sleep(idle_grace);
+                }
+                signal_hook::low_level::exit(128 + sig);
+            }
+        })
+        .map_err(|e| DcrtError::Internal(format!("cannot start the signal thread: {e}")))?;
+    Ok(())
 }
 
 /// Writes `bytes` to `path` as `write_atomic` does.
@@ -127,6 +226,7 @@ pub fn check_outputs(outputs: &[(&str, &Path, u32)], inputs: &[PathBuf]) -> Resu
         }
         // A probe file proves the directory takes new files (permissions, a read-only mount).
         let probe = partial_path(path);
+        let _w = written();
         std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)

@@ -5,10 +5,7 @@
 use crate::dc::trace::{self, Run};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
-use std::sync::OnceLock;
 use std::time::Instant;
-
-static EPOCH: OnceLock<Instant> = OnceLock::new();
 
 /// Collective: every rank of `world` calls it once, before its role starts.
 pub fn agree(world: &SimpleCommunicator) {
@@ -22,7 +19,7 @@ pub fn agree(world: &SimpleCommunicator) {
     }
     world.process_at_rank(0).broadcast_into(&mut id[..]);
     world.barrier();
-    let _ = EPOCH.set(Instant::now());
+    trace::set_epoch(Instant::now());
     trace::set_run(Run {
         run: trace::run_id(id[0], id[1] as u32),
         epoch_wtime: Some(mpi::time()),
@@ -31,5 +28,5 @@ pub fn agree(world: &SimpleCommunicator) {
 
 /// The instant the ranks left the barrier (now, if `agree` was not called).
 pub fn epoch() -> Instant {
-    *EPOCH.get_or_init(Instant::now)
+    trace::epoch()
 }

@@ -195,7 +195,7 @@ impl<'a> Display<'a> {
                 "cache": opts.cache.map(|(c, m)| format!("{c:?} {m:?}")),
                 "frames": self.report, "display_bench": bench,
             });
-            std::fs::write(path, all.to_string()).map_err(|e| Error::io(path, e))?;
+            output::write_bytes(path, all.to_string().as_bytes())?;
         }
         Ok(())
     }

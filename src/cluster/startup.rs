@@ -135,7 +135,12 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     };
     check_image_size(image.width, image.height)?;
     if rank == Roles::DISPLAY {
-        crate::render::memory::check_image(image.width, image.height)?;
+        use crate::render::memory;
+        let exr = opts
+            .exr
+            .as_ref()
+            .map_or(0, |_| memory::exr_channels(&opts.aovs));
+        memory::check_image_with_exr(image.width, image.height, exr, memory::available())?;
     }
     // Applied here, after the scene is read, so that a rank that cannot read it still takes
     // part in the agreement.

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+use std::time::Instant;
 
 /// The version of the record schema (docs/ARCHITECTURE.md, Trace records), written in every
 /// `frame` record. Files without it are version 0: the same records, no `run`.
@@ -50,6 +51,24 @@ pub fn run_id(nanos: u64, pid: u32) -> String {
     format!("{nanos:016x}-{pid}")
 }
 
+static EPOCH: OnceLock<Instant> = OnceLock::new();
+
+/// Sets the instant trace times count from (a cluster: the start-up barrier, `cluster::clock`);
+/// the first call wins.
+pub fn set_epoch(t: Instant) {
+    let _ = EPOCH.set(t);
+}
+
+/// The instant trace times count from: the one `set_epoch` set, else the first call's.
+pub fn epoch() -> Instant {
+    *EPOCH.get_or_init(Instant::now)
+}
+
+/// Milliseconds from the trace epoch to `t`.
+pub fn ms_since_epoch(t: Instant) -> f64 {
+    t.saturating_duration_since(epoch()).as_secs_f64() * 1e3
+}
+
 /// A block that faulted in a round.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Fault {
@@ -79,6 +98,16 @@ pub struct Round {
     pub fetch_us: f64,
     pub upload_us: f64,
     pub source: String,
+    /// When the round's dispatches were submitted, in ms since the trace epoch (absent in traces
+    /// of older builds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_ms: Option<f64>,
+    /// From the submission until its readback was mapped (the GPU's work and the wait).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wait_ms: Option<f64>,
+    /// The round's GPU time from timestamps, where the adapter has them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gpu_ms: Option<f64>,
 }
 
 /// The frame's totals.
@@ -105,6 +134,9 @@ pub struct Summary {
     pub fetch_ms: f64,
     pub upload_ms: f64,
     pub shade_ms: f64,
+    /// When the frame began, in ms since the trace epoch (absent in traces of older builds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_ms: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -142,25 +174,25 @@ impl FrameTrace {
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
         let io = |e| Error::io(&path, e);
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&path).map_err(io)?);
-        for r in &self.rounds {
-            serde_json::to_writer(&mut w, &Record::Round(r))
+        crate::output::write_record(&path, |w| {
+            for r in &self.rounds {
+                serde_json::to_writer(&mut *w, &Record::Round(r))
+                    .map_err(|e| Error::Invalid(e.to_string()))?;
+                w.write_all(b"\n").map_err(io)?;
+            }
+            for e in &self.events {
+                serde_json::to_writer(&mut *w, e).map_err(|e| Error::Invalid(e.to_string()))?;
+                w.write_all(b"\n").map_err(io)?;
+            }
+            let frame = FrameRecord {
+                version: VERSION,
+                run: run(),
+                summary: &self.summary,
+            };
+            serde_json::to_writer(&mut *w, &Record::Frame(frame))
                 .map_err(|e| Error::Invalid(e.to_string()))?;
-            w.write_all(b"\n").map_err(io)?;
-        }
-        for e in &self.events {
-            serde_json::to_writer(&mut w, e).map_err(|e| Error::Invalid(e.to_string()))?;
-            w.write_all(b"\n").map_err(io)?;
-        }
-        let frame = FrameRecord {
-            version: VERSION,
-            run: run(),
-            summary: &self.summary,
-        };
-        serde_json::to_writer(&mut w, &Record::Frame(frame))
-            .map_err(|e| Error::Invalid(e.to_string()))?;
-        w.write_all(b"\n").map_err(io)?;
-        w.flush().map_err(io)?;
+            w.write_all(b"\n").map_err(io)
+        })?;
         Ok(path)
     }
 }

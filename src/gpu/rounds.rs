@@ -114,18 +114,23 @@ impl Tracer<'_> {
                 let wait_bytes = 4 * u64::from(dc.policy.lines());
                 enc.copy_buffer_to_buffer(&bufs.waiters, 0, &b.waiter_readback, 0, wait_bytes);
             }
+            let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
             let data = gpu.map_read(&b.readback)?;
+            let waited = submitted.elapsed();
             // Mapped bytes carry no alignment promise: read them unaligned.
             let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
             let s = r.stats;
             if started.is_none() {
                 started = Some(r.started);
             }
+            let mut gpu_ms = None;
             if b.timestamps.is_some() {
                 let period = f64::from(gpu.queue.get_timestamp_period());
                 let t = r.timestamps;
-                stats.gpu_seconds += t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
+                let secs = t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
+                stats.gpu_seconds += secs;
+                gpu_ms = Some(secs * 1e3);
             }
             if s.overflows > 0 {
                 return Err(Error::Gpu(format!(
@@ -138,7 +143,8 @@ impl Tracer<'_> {
             if self.dc.is_some() {
                 let faults = gpu.map_read(&self.batch.fault_readback)?;
                 let waiters = gpu.map_read(&self.batch.waiter_readback)?;
-                self.serve_faults(&faults, &waiters, r.counter.count, live_rounds, stats)?;
+                let when = (submitted, waited, gpu_ms);
+                self.serve_faults(&faults, &waiters, r.counter.count, live_rounds, when, stats)?;
                 self.clear_faults(&mut enc);
             }
             if r.counter.count == 0 {
@@ -187,6 +193,7 @@ impl Tracer<'_> {
         waiters: &[u8],
         live: u32,
         round: u32,
+        (submitted, waited, gpu_ms): (Instant, std::time::Duration, Option<f64>),
         stats: &mut FrameStats,
     ) -> Result<()> {
         let cap = self.params.dc_fault_cap;
@@ -210,6 +217,9 @@ impl Tracer<'_> {
             dropped: header.dropped,
             source: dc.source.name().into(),
             faults: plan.faults,
+            start_ms: Some(crate::dc::trace::ms_since_epoch(submitted)),
+            wait_ms: Some(waited.as_secs_f64() * 1e3),
+            gpu_ms,
             ..Round::default()
         };
         let bw = self.format.words() as usize;

@@ -110,6 +110,7 @@ pub fn run_frames(
 ) -> Result<()> {
     for frame in 0..plan.frames {
         let camera = plan.view.camera(frame, plan.frames);
+        let started = crate::dc::trace::ms_since_epoch(std::time::Instant::now());
         let mut stats = tracer.begin_frame();
         body.trace(FrameCtx {
             frame,
@@ -121,6 +122,7 @@ pub fn run_frames(
         let mut trace = tracer.take_trace();
         let cache = tracer.cache().map(|(_, lines, map)| (lines, map));
         trace.summary = summarize(&stats, cache, frame, plan.role);
+        trace.summary.start_ms = Some(started);
         body.finish(frame, &stats, &mut trace)?;
         if let Some(dir) = plan.trace_dir {
             trace.write(dir)?;
@@ -284,6 +286,7 @@ mod tests {
             fetch_ms: 31.25,
             upload_ms: 15.625,
             shade_ms: 62.5,
+            start_ms: None,
         };
         assert_eq!(s, want);
         let none = FrameStats {

@@ -3,10 +3,11 @@
 //! that own its blocks.
 //!
 //! Times: cluster traces count milliseconds from one barrier on every rank (docs/ARCHITECTURE.md,
-//! Traces), so the ranks line up. Tiles, grants and the display's frames carry times; rounds do
-//! not, so a frame's rounds are laid out in their recorded order from the frame's start, each as
-//! its mean GPU time (the frame's `trace_ms` over its rounds) followed by its measured fetch and
-//! upload. A render without tiles (one process) lays its frames end to end by `frame_ms`.
+//! Traces), so the ranks line up. Frames, rounds, tiles, grants and the display's frames carry
+//! times: a round spans its submission to its readback (`start_ms`, `wait_ms`), its fetch and
+//! upload follow. Traces of older builds have no round or frame times: their rounds are laid out
+//! in recorded order from the frame's start, each as its mean GPU time (the frame's `trace_ms`
+//! over its rounds), and frames without tiles end to end by `frame_ms`.
 
 use super::read::{RankFrame, Traces};
 use serde_json::{Value, json};
@@ -89,7 +90,10 @@ pub fn timeline(t: &Traces) -> Value {
         let mut cursor = 0.0;
         for f in t.files.iter().filter(|f| f.frame.rank == rank) {
             let s = &f.frame;
-            let (start, end) = frame_extent(f).unwrap_or((cursor, cursor + s.frame_ms));
+            let (start, end) = frame_extent(f).unwrap_or_else(|| {
+                let at = s.start_ms.unwrap_or(cursor);
+                (at, at + s.frame_ms)
+            });
             cursor = end;
             let args = json!({"rounds": s.rounds, "fault_rounds": s.fault_rounds,
                               "hit_rate": s.hit_rate, "fetched_blocks": s.fetched_blocks,
@@ -139,19 +143,26 @@ pub fn timeline(t: &Traces) -> Value {
             let gpu_ms = s.trace_ms / f64::from(s.rounds.max(1));
             let mut at = start;
             for r in &f.rounds {
+                let (placed, dur) = match (r.start_ms, r.wait_ms) {
+                    (Some(t), Some(w)) => {
+                        at = t;
+                        ("at its submission, until its readback", w)
+                    }
+                    _ => ("in recorded order (no start time)", gpu_ms),
+                };
                 let a = json!({"batch": r.batch, "round": r.round, "live": r.live,
                                "faults": r.faults.len(), "dropped": r.dropped,
-                               "placed": "in recorded order; rounds carry no start times"});
+                               "gpu_ms": r.gpu_ms, "placed": placed});
                 ev.push(span(
                     format!("round {}.{}", r.batch, r.round),
                     rank,
                     ROUNDS,
                     at,
-                    gpu_ms,
+                    dur,
                     a,
                 ));
                 ev.push(counter("live rays", rank, at, f64::from(r.live)));
-                at += gpu_ms;
+                at += dur;
                 let fetch_ms = r.fetch_us / 1000.0;
                 ev.push(span(
                     format!("fetch {} blocks", r.fetched_blocks),

@@ -620,3 +620,49 @@ fn a_hung_rank_ends_the_job_within_its_timeout() {
         assert!(err.contains(expect), "{how}: {err}");
     }
 }
+
+/// SIGTERM to mpirun part-way through a job: every rank ends (no process of the job is left),
+/// the job exits non-zero, and the display has removed every frame it wrote, with no temporary
+/// file left (the other ranks wait a moment before exiting so that mpirun, which kills the whole
+/// job once one rank has exited, leaves the display the time).
+#[test]
+fn sigterm_to_mpirun_ends_every_rank_and_leaves_no_outputs() {
+    let dir = TempDir::new("cluster-sigterm");
+    let scene = dir.write(
+        "rm.toml",
+        "[image]\nwidth = 32\nheight = 24\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 2000\n",
+    );
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["--oversubscribe", "-n", "3", dcrt_bin(), "render"])
+        .arg(&scene)
+        .arg("-o")
+        .arg(dir.path("f.png"))
+        .args(["--frames", "100000"])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+    let limit = Duration::from_secs(90);
+    let (status, err, took) = crate::outputs::signal_after(cmd, "frame 2:", "TERM", limit);
+    assert!(!status.success(), "the job should fail:\n{err}");
+    assert!(
+        took < Duration::from_secs(30),
+        "the job took {took:?} to end after SIGTERM:\n{err}"
+    );
+    let mut left: Vec<String> = std::fs::read_dir(&dir.0)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["rm.toml"], "the job left outputs:\n{err}");
+    // No rank outlives mpirun: none of them has this test's directory on its command line.
+    let mark = dir.0.to_string_lossy().into_owned();
+    let alive: Vec<String> = std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| {
+            let e = e.ok()?;
+            let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
+            let cmdline = String::from_utf8_lossy(&cmdline).replace('\0', " ");
+            cmdline.contains(&mark).then_some(cmdline)
+        })
+        .collect();
+    assert!(alive.is_empty(), "ranks still running: {alive:?}");
+}

@@ -137,6 +137,12 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
             i as u32,
             role,
         );
+        // The frame loop adds when the frame began.
+        assert!(s.start_ms.is_some_and(|t| t >= 0.0), "frame {i}: {s:?}");
+        let want = dcrt::dc::trace::Summary {
+            start_ms: s.start_ms,
+            ..want
+        };
         assert_eq!(s, &want, "frame {i}");
         assert_eq!((s.frame, s.rank, s.ranks), (i as u32, 1, 3));
         assert_eq!(s.hits + s.misses, s.lookups);

@@ -243,3 +243,105 @@ fn outputs_are_replaced_whole() {
         ]
     );
 }
+
+/// Starts `cmd` with stderr piped, waits for a stderr line containing `line`, sends it `signal`
+/// (`kill -SIG`), and waits for it to end: its status, its stderr, and the time from the signal
+/// to its end. Every wait is bounded by `limit`; a command still running then is killed and the
+/// test fails.
+pub(crate) fn signal_after(
+    mut cmd: std::process::Command,
+    line: &str,
+    signal: &str,
+    limit: std::time::Duration,
+) -> (std::process::ExitStatus, String, std::time::Duration) {
+    use std::io::BufRead;
+    use std::time::Instant;
+    let mut child = cmd
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let err = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(err).lines() {
+            let Ok(l) = l else { break };
+            if tx.send(l).is_err() {
+                break;
+            }
+        }
+    });
+    let mut text = String::new();
+    let start = Instant::now();
+    loop {
+        let left = limit.saturating_sub(start.elapsed());
+        match rx.recv_timeout(left) {
+            Ok(l) => {
+                text.push_str(&l);
+                text.push('\n');
+                if l.contains(line) {
+                    break;
+                }
+            }
+            Err(_) => {
+                let _ = child.kill();
+                panic!("no line {line:?} within {limit:?}:\n{text}");
+            }
+        }
+    }
+    let status = std::process::Command::new("kill")
+        .args([format!("-{signal}"), child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success(), "kill -{signal} failed");
+    let sent = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if sent.elapsed() > limit {
+            let _ = child.kill();
+            panic!("still running {limit:?} after {signal}:\n{text}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let took = sent.elapsed();
+    // What the process said before it ended (the pipe closes with it).
+    while let Ok(l) = rx.recv_timeout(std::time::Duration::from_secs(2)) {
+        text.push_str(&l);
+        text.push('\n');
+    }
+    (status, text, took)
+}
+
+/// SIGTERM or SIGINT part-way through a one-process run: the run removes every output it wrote
+/// and leaves no temporary file, says why, and exits with 128 + the signal; files that were
+/// there before and are not outputs of the run stay.
+#[test]
+fn an_interrupted_render_leaves_nothing_of_itself() {
+    for (signal, code) in [("TERM", 143), ("INT", 130)] {
+        let (d, s) = setup(&format!("out-sig{signal}"));
+        d.write("keep.txt", "mine");
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"));
+        cmd.arg("render")
+            .arg(&s)
+            .arg("-o")
+            .arg(d.path("f.png"))
+            .arg("--exr")
+            .arg(d.path("f.exr"))
+            .args(["--aov", "depth", "--frames", "100000"]);
+        let limit = std::time::Duration::from_secs(60);
+        let (status, err, _) = signal_after(cmd, "frame 2:", signal, limit);
+        assert_eq!(status.code(), Some(code), "SIG{signal}:\n{err}");
+        assert!(
+            err.contains(&format!("interrupted by SIG{signal}")),
+            "SIG{signal} not named:\n{err}"
+        );
+        assert_eq!(
+            listing(&d.0),
+            ["keep.txt", "s.toml", "tri.obj"],
+            "SIG{signal} left outputs:\n{err}"
+        );
+        assert_eq!(std::fs::read(d.path("keep.txt")).unwrap(), b"mine");
+    }
+}

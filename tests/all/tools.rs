@@ -314,6 +314,35 @@ fn cluster_perfetto_has_a_process_per_rank_and_every_kind_of_span() {
             "{pid}: {k:?}"
         );
     }
+    // Rounds carry their own times: each is placed at its submission, in order, inside one of
+    // its rank's frames.
+    for pid in [3u64, 4] {
+        let spans = |prefix: &str| -> Vec<(f64, f64, &Value)> {
+            ev.iter()
+                .filter(|e| e["ph"] == "X" && e["pid"] == pid)
+                .filter(|e| e["name"].as_str().unwrap().starts_with(prefix))
+                .map(|e| (e["ts"].as_f64().unwrap(), e["dur"].as_f64().unwrap(), e))
+                .collect()
+        };
+        let (frames, rounds) = (spans("frame "), spans("round "));
+        assert!(!rounds.is_empty(), "{pid}: no rounds");
+        let mut last = f64::MIN;
+        for &(ts, dur, e) in &rounds {
+            assert_eq!(
+                e["args"]["placed"], "at its submission, until its readback",
+                "{pid}: {e}"
+            );
+            assert!(ts >= last, "{pid}: rounds out of order at {e}");
+            last = ts;
+            // Microseconds; 1 ms of slack for rounding and the tiles' own clock reads.
+            assert!(
+                frames
+                    .iter()
+                    .any(|&(f, d, _)| ts >= f - 1e3 && ts + dur <= f + d + 1e3),
+                "{pid}: round outside every frame: {e}"
+            );
+        }
+    }
     assert!(ev.iter().any(|e| e["ph"] == "i" && e["pid"] == 2), "grants");
     for c in ["hit rate", "live rays", "bytes in flight"] {
         assert!(

@@ -310,6 +310,11 @@ struct BenchArgs {
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Memory soak: render an orbit of this many frames in one process (rank --rank of
+    /// --virtual-ranks with the first of --caches, `none` replicating) and report resident
+    /// memory at intervals and its slope in bytes per frame.
+    #[arg(long)]
+    soak: Option<u32>,
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,
@@ -348,6 +353,15 @@ struct BenchArgs {
 fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    // An interrupted command leaves none of its outputs (docs/ARCHITECTURE.md, Outputs).
+    let grace = match dcrt::cluster::launched_ranks() {
+        Some(k) if k > 1 => std::time::Duration::from_millis(500),
+        _ => std::time::Duration::ZERO,
+    };
+    if let Err(e) = dcrt::output::remove_on_interrupt(grace) {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     let result = match cli.command {
         Command::Render(a) => render::render(a),
         Command::Info { adapter } => info::info(adapter.as_deref()),
@@ -424,6 +438,7 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         display_bench: c.display_bench,
         stats: c.stats.clone(),
     };
-    dcrt::cluster::run(&opts)?;
+    // A failed job leaves none of the frames this rank wrote, as in one process.
+    dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;
     Ok(())
 }

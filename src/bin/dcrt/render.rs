@@ -9,10 +9,10 @@ use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::Settings;
 use dcrt::output;
 use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
-use dcrt::render::{Loaded, mib};
+use dcrt::render::{Loaded, memory, mib};
 use dcrt::scene::{Scene, check_image_size};
 use dcrt::shading::Shading;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub fn render(a: RenderArgs) -> Result<()> {
     check_budget(a.gpu.step_budget)?;
@@ -72,23 +72,18 @@ pub fn render(a: RenderArgs) -> Result<()> {
 /// atomically; if the run fails, the files it has written are removed, so a failed run leaves
 /// nothing half done.
 fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
-    let mut written = Vec::new();
-    let done = frames_of(a, format, &mut written);
-    if done.is_err() {
-        for p in &written {
-            let _ = std::fs::remove_file(p);
-        }
-    }
-    done
+    frames_of(a, format).inspect_err(|_| output::remove_written())
 }
 
-fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Result<()> {
+fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
     let mut report = Vec::new();
     let width = a.width.unwrap_or(loaded.width);
     let height = a.height.unwrap_or(loaded.height);
     check_image_size(width, height)?;
+    let exr_channels = a.exr.as_ref().map_or(0, |_| memory::exr_channels(&a.aov));
+    memory::check_image_with_exr(width, height, exr_channels, memory::available())?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     eprintln!("adapter: {}", gpu.describe());
     let shading = a.shade.apply(loaded.shading)?;
@@ -138,16 +133,16 @@ fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Resu
         bg,
         &mut |i, frame, stats| {
             let numbered = |p: &Path| output::numbered(p, i, a.frames);
-            report.push(
-                serde_json::json!({"frame": i, "frame_ms": stats.seconds * 1e3, "stats": stats}),
-            );
+            // Kept only for --stats, and as the stats themselves: a JSON value per frame was
+            // about 4 KiB, a leak in a long run (docs/ARCHITECTURE.md, Frame loop).
+            if a.cluster.stats.is_some() {
+                report.push(stats.clone());
+            }
             let png = numbered(&a.output);
             output::write_png_exposed(&png, &frame, a.exposure)?;
-            written.push(png.clone());
             if let Some(exr) = &a.exr {
                 let exr = numbered(exr);
                 output::write_exr(&exr, &frame, &a.aov)?;
-                written.push(exr);
             }
             eprintln!(
                 "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
@@ -179,10 +174,14 @@ fn frames_of(a: &RenderArgs, format: Format, written: &mut Vec<PathBuf>) -> Resu
         },
     )?;
     if let Some(path) = &a.cluster.stats {
+        let frames: Vec<_> = report
+            .iter()
+            .enumerate()
+            .map(|(i, s)| serde_json::json!({"frame": i, "frame_ms": s.seconds * 1e3, "stats": s}))
+            .collect();
         let all =
-            serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": report});
+            serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": frames});
         output::write_bytes(path, all.to_string().as_bytes())?;
-        written.push(path.clone());
     }
     Ok(())
 }

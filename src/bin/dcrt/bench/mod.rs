@@ -5,6 +5,7 @@
 mod cluster;
 mod dc;
 pub mod shading;
+mod soak;
 mod trace;
 
 pub use trace::Peer;
@@ -74,6 +75,9 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     let model = scene.load_model()?;
     let camera = scene.camera_or_default(&model);
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    if a.soak.is_some() {
+        return soak::run(&a, &gpu, &scene, model, camera, format);
+    }
     if a.dc {
         return dc::run(&a, &gpu, &scene, model, camera, format);
     }

@@ -1,0 +1,182 @@
+//! `dcrt bench --soak FRAMES`: one process renders a long orbit, as a real-time session would
+//! (each frame converted to 8-bit sRGB and dropped), and reports resident memory at intervals and
+//! its slope in bytes per frame. A leak of a few KiB a frame shows over thousands of frames.
+
+use super::{Table, emit};
+use crate::{BenchArgs, settings};
+use anyhow::{Context, Result, bail};
+use dcrt::blocks::Format;
+use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::gpu::Gpu;
+use dcrt::render::frames::{FramePlan, Role, View, run_images};
+use dcrt::render::memory::resident;
+use dcrt::render::{DcOptions, Prepared, mib};
+use dcrt::scene::{Camera, Model, Scene};
+use std::time::Instant;
+
+#[derive(serde::Serialize)]
+struct Sample {
+    frame: u32,
+    seconds: f64,
+    rss_bytes: u64,
+}
+
+#[derive(serde::Serialize)]
+struct SoakReport {
+    adapter: String,
+    scene: String,
+    triangles: usize,
+    width: u32,
+    height: u32,
+    frames: u32,
+    /// `None` when replicated.
+    cache: Option<String>,
+    ranks: u32,
+    rank: u32,
+    samples: Vec<Sample>,
+    /// Least-squares slope of RSS over the samples after the first tenth of the run (warm-up:
+    /// the cache fills, the allocator settles).
+    bytes_per_frame: f64,
+    rss_start_mib: f64,
+    rss_end_mib: f64,
+    rss_peak_mib: f64,
+    frames_per_second: f64,
+}
+
+/// Least-squares slope of y over x.
+fn slope(points: &[(f64, f64)]) -> f64 {
+    let n = points.len() as f64;
+    if points.len() < 2 {
+        return 0.0;
+    }
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), &(x, y)| (a + x / n, b + y / n));
+    let (sxy, sxx) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+        (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+    });
+    if sxx > 0.0 { sxy / sxx } else { 0.0 }
+}
+
+pub fn run(
+    a: &BenchArgs,
+    gpu: &Gpu,
+    scene: &Scene,
+    model: Model,
+    camera: Camera,
+    format: Format,
+) -> Result<()> {
+    let frames = a.soak.unwrap_or(0);
+    if frames < 20 {
+        bail!("--soak needs at least 20 frames, got {frames}");
+    }
+    let triangles = model.triangles.len();
+    let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
+    // The first of --caches, `none` replicating; as rank --rank of --virtual-ranks.
+    let cache = a.caches.first().filter(|c| c.as_str() != "none");
+    let dc = match cache {
+        Some(c) => Some(DcOptions {
+            ranks: a.virtual_ranks,
+            rank: a.rank,
+            cache: CacheSize::parse(c)?,
+            map: CacheMap::Ize,
+        }),
+        None => None,
+    };
+    let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), dc.as_ref())?;
+    let every = (frames / 50).max(1);
+    let start = Instant::now();
+    let mut samples = Vec::with_capacity(52);
+    let sample = |frame: u32| -> dcrt::Result<Sample> {
+        let (rss, _) = resident()
+            .ok_or_else(|| dcrt::Error::Internal("cannot read /proc/self/status".into()))?;
+        Ok(Sample {
+            frame,
+            seconds: start.elapsed().as_secs_f64(),
+            rss_bytes: rss,
+        })
+    };
+    let plan = FramePlan {
+        frames,
+        view: View::Orbit(camera),
+        role: Role::one_process(&tracer),
+        trace_dir: None,
+    };
+    let table = Table(&[("frame", 7), ("seconds", 9), ("RSS MiB", 9)]);
+    if !a.json {
+        table.header();
+    }
+    run_images(
+        &mut tracer,
+        &plan,
+        a.width,
+        a.height,
+        scene.background,
+        &mut |i, frame, _| {
+            std::hint::black_box(dcrt::output::to_rgb8(&frame));
+            if i % every == 0 || i + 1 == frames {
+                let s = sample(i)?;
+                if !a.json {
+                    table.row(&[
+                        s.frame.to_string(),
+                        format!("{:.1}", s.seconds),
+                        format!("{:.1}", mib(s.rss_bytes)),
+                    ]);
+                }
+                samples.push(s);
+            }
+            Ok(())
+        },
+    )?;
+    let seconds = start.elapsed().as_secs_f64();
+    let (_, peak) = resident().context("cannot read /proc/self/status")?;
+    let warm: Vec<(f64, f64)> = samples
+        .iter()
+        .filter(|s| s.frame >= frames / 10)
+        .map(|s| (f64::from(s.frame), s.rss_bytes as f64))
+        .collect();
+    let report = SoakReport {
+        adapter: gpu.describe(),
+        scene: scene.path.display().to_string(),
+        triangles,
+        width: a.width,
+        height: a.height,
+        frames,
+        cache: cache.cloned(),
+        ranks: a.virtual_ranks,
+        rank: a.rank,
+        bytes_per_frame: slope(&warm),
+        rss_start_mib: mib(samples[0].rss_bytes),
+        rss_end_mib: mib(samples.last().expect("sampled").rss_bytes),
+        rss_peak_mib: mib(peak),
+        frames_per_second: f64::from(frames) / seconds,
+        samples,
+    };
+    emit(a.json, &report, |r| {
+        println!(
+            "{} frames at {:.1} frames/s: RSS {:.1} MiB at frame 0, {:.1} MiB at the end (peak \
+             {:.1}); slope after frame {}: {:.0} bytes per frame",
+            r.frames,
+            r.frames_per_second,
+            r.rss_start_mib,
+            r.rss_end_mib,
+            r.rss_peak_mib,
+            r.frames / 10,
+            r.bytes_per_frame
+        );
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::slope;
+
+    #[test]
+    fn slope_of_a_line_and_of_noise_around_it() {
+        let line: Vec<(f64, f64)> = (0..10).map(|x| (x as f64, 3.0 * x as f64 + 7.0)).collect();
+        assert!((slope(&line) - 3.0).abs() < 1e-9);
+        let flat: Vec<(f64, f64)> = (0..10).map(|x| (x as f64, (x % 2) as f64)).collect();
+        assert!(slope(&flat).abs() < 0.2);
+        assert_eq!(slope(&[(1.0, 2.0)]), 0.0);
+    }
+}
