@@ -302,6 +302,10 @@ struct BenchArgs {
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// --shading: also render the path-traced scenes with this renderer (scripts/mitsuba-peer.sh,
+    /// which installs Mitsuba 3 into its own venv on first use) against the same references.
+    #[arg(long, value_enum)]
+    peer: Option<bench::shading::Peer>,
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,

@@ -30,6 +30,9 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         );
     }
     check_budget(a.gpu.step_budget)?;
+    if a.peer.is_some() && !a.shading {
+        bail!("--peer needs --shading");
+    }
     if a.shading {
         if a.max_spp == 0 {
             bail!("--max-spp must be at least 1");
@@ -48,6 +51,7 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             reference_spp: a.reference_spp,
             json: a.json,
             plot: a.plot.as_deref(),
+            peer: a.peer,
         };
         return shading::run(&gpu, &args);
     }
