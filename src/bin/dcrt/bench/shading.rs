@@ -78,7 +78,7 @@ pub struct Agreement {
     rmse: f64,
 }
 
-/// At one spp: each dcrt sampler's RMSE and time over the peer's.
+/// At one spp: each dcrt sampler's RMSE and time beside the peer's.
 #[derive(serde::Serialize)]
 pub struct Versus {
     scene: String,
