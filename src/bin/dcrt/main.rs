@@ -282,8 +282,11 @@ struct BenchArgs {
     /// `ao` traces 4 rays per hit and `path` at most 3 bounces, to keep a frame short.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "cast")]
     modes: Vec<Mode>,
-    /// Also trace the same camera rays with a native peer on every core, in the same run, and
-    /// report both rates, their ratio and how often the hits agree (`scripts/embree-peer.sh`).
+    /// A peer renderer run beside dcrt in the same run: `embree` traces the same camera rays on
+    /// every core and reports both rates, their ratio and how often the hits agree
+    /// (scripts/embree-peer.sh); `mitsuba` (with --shading) renders the path-traced scenes
+    /// against the same references (scripts/mitsuba-peer.sh, which installs Mitsuba 3 into its
+    /// own venv on first use).
     #[arg(long, value_enum)]
     peer: Option<bench::Peer>,
     /// Distributed-cache sweep: replicated against caches of 1/32..1/1 with both mappings, over

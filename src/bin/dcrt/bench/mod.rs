@@ -8,7 +8,16 @@ pub mod shading;
 mod soak;
 mod trace;
 
-pub use trace::Peer;
+/// A peer renderer run beside dcrt in the same bench run (`--peer`), on the same cores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Peer {
+    /// Embree 3 (`rtcIntersect8` packets, a thread per core) on the same camera rays, through
+    /// `scripts/embree-peer.sh`: primary-ray throughput.
+    Embree,
+    /// Mitsuba 3 (`llvm_ad_rgb`, `path`, independent sampler) on the same path-traced scenes,
+    /// through `scripts/mitsuba-peer.sh`: time against error (with `--shading`).
+    Mitsuba,
+}
 
 use crate::BenchArgs;
 use crate::checks::check_budget;
@@ -33,6 +42,15 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         );
     }
     check_budget(a.gpu.step_budget)?;
+    match a.peer {
+        Some(Peer::Mitsuba) if !a.shading => bail!("--peer mitsuba needs --shading"),
+        Some(Peer::Embree) if a.shading || a.dc || a.cluster || a.soak.is_some() => {
+            bail!(
+                "--peer embree measures primary rays: it goes without --shading, --dc, --cluster and --soak"
+            )
+        }
+        _ => {}
+    }
     if a.shading {
         if a.max_spp == 0 {
             bail!("--max-spp must be at least 1");
@@ -51,6 +69,7 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             reference_spp: a.reference_spp,
             json: a.json,
             plot: a.plot.as_deref(),
+            peer: a.peer,
         };
         return shading::run(&gpu, &args);
     }

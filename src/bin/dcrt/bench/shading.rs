@@ -1,9 +1,12 @@
 //! `dcrt bench --shading`: time against error for AO and path tracing on the rm and assembly
 //! generators with both samplers, the time each takes to reach given errors, and the cost and
-//! error of the accuracy knobs. A table, `--json`, and a PNG plot.
+//! error of the accuracy knobs; with `--peer mitsuba`, Mitsuba 3 on the same path-traced scenes
+//! against the same references. A table, `--json`, and a PNG plot.
 
-use super::{MODELS, Table, emit};
-use anyhow::Result;
+mod mitsuba;
+
+use super::{MODELS, Peer, Table, emit};
+use anyhow::{Context, Result};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
@@ -46,6 +49,53 @@ pub struct RefInfo {
     noise: f64,
 }
 
+/// One peer run (per scene): what the script reports about itself.
+#[derive(serde::Serialize)]
+pub struct PeerRun {
+    scene: String,
+    #[serde(flatten)]
+    output: mitsuba::Output,
+}
+
+/// A converged peer render against dcrt's reference: image means, their relative difference,
+/// and the per-pixel RMSE between the two.
+#[derive(serde::Serialize)]
+pub struct Agreement {
+    scene: String,
+    mode: String,
+    peer_spp: u32,
+    reference_spp: u32,
+    dcrt_mean: f64,
+    peer_mean: f64,
+    mean_rel_diff: f64,
+    rmse: f64,
+}
+
+/// At one spp: each dcrt sampler's RMSE and time beside the peer's.
+#[derive(serde::Serialize)]
+pub struct Versus {
+    scene: String,
+    mode: String,
+    spp: u32,
+    sobol_rmse: f64,
+    independent_rmse: f64,
+    peer_rmse: f64,
+    sobol_ms: f64,
+    independent_ms: f64,
+    peer_ms: f64,
+}
+
+/// Time-to-error ratio at an RMSE level: dcrt's Sobol' time over the peer's.
+#[derive(serde::Serialize)]
+pub struct TimeRatio {
+    scene: String,
+    mode: String,
+    rmse: f64,
+    sobol_ms: Option<f64>,
+    peer_ms: Option<f64>,
+    ratio: Option<f64>,
+}
+
 #[derive(serde::Serialize)]
 pub struct Knob {
     scene: String,
@@ -71,6 +121,10 @@ pub struct Report {
     curve: Vec<Point>,
     time_to: Vec<TimeTo>,
     knobs: Vec<Knob>,
+    peer: Vec<PeerRun>,
+    agreement: Vec<Agreement>,
+    versus: Vec<Versus>,
+    time_ratio: Vec<TimeRatio>,
 }
 
 /// The RMSE levels of the time-to-error table.
@@ -100,10 +154,15 @@ fn time_to(points: &[&Point], level: f64) -> (Option<f64>, Option<f64>) {
 
 /// RMSE and relative MSE of an image against a reference (linear RGB per pixel).
 fn error(f: &Frame, r: &[[f64; 3]]) -> (f64, f64) {
+    let img: Vec<[f32; 3]> = f.pixels.iter().map(|p| p.rgb).collect();
+    error_rgb(&img, r)
+}
+
+fn error_rgb(img: &[[f32; 3]], r: &[[f64; 3]]) -> (f64, f64) {
     let (mut se, mut rel) = (0.0, 0.0);
-    let n = (3 * f.pixels.len()) as f64;
-    for (p, q) in f.pixels.iter().zip(r) {
-        for (c, r) in p.rgb.iter().zip(q) {
+    let n = (3 * img.len()) as f64;
+    for (p, q) in img.iter().zip(r) {
+        for (c, r) in p.iter().zip(q) {
             let d = f64::from(*c) - r;
             se += d * d;
             rel += d * d / (r.powi(2) + 1e-2);
@@ -129,6 +188,7 @@ pub struct Args<'a> {
     pub reference_spp: u32,
     pub json: bool,
     pub plot: Option<&'a Path>,
+    pub peer: Option<Peer>,
 }
 
 pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
@@ -138,6 +198,7 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
     let mut curve = Vec::new();
     let mut knobs = Vec::new();
     let mut references = Vec::new();
+    let (mut peer, mut agreement) = (Vec::new(), Vec::new());
     for g in MODELS {
         let scene = Scene::generated(g, a.triangles, w, h);
         let model = scene.load_model()?;
@@ -150,6 +211,8 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
                 ao_rays,
                 ao_distance: 0.25 * p.model.bounds.diagonal() as f32,
                 max_depth,
+                sky: [1.0; 3],
+                sun: [0.0; 3],
                 ..Shading::default()
             };
             let mut t = p.tracer(
@@ -222,6 +285,41 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
                     spp *= 2;
                 }
             }
+            if let (Some(Peer::Mitsuba), Mode::Path) = (a.peer, mode) {
+                let (run, converged) =
+                    mitsuba_curve(&p.model, &basis, &base, a.max_spp, ref_spp, &reference)?;
+                for (spp, ms, (rmse, rel_mse)) in run.1 {
+                    curve.push(Point {
+                        scene: name.clone(),
+                        mode: mode.name().into(),
+                        sampler: PEER.into(),
+                        spp,
+                        ms,
+                        rmse,
+                        rel_mse,
+                    });
+                }
+                let mean = |v: &mut dyn Iterator<Item = f64>| {
+                    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+                    s / n.max(1) as f64
+                };
+                let dcrt_mean = mean(&mut reference.iter().flatten().copied());
+                let peer_mean = mean(&mut converged.iter().flatten().map(|&x| f64::from(x)));
+                agreement.push(Agreement {
+                    scene: name.clone(),
+                    mode: mode.name().into(),
+                    peer_spp: ref_spp,
+                    reference_spp: ref_spp,
+                    dcrt_mean,
+                    peer_mean,
+                    mean_rel_diff: (peer_mean - dcrt_mean) / dcrt_mean,
+                    rmse: error_rgb(&converged, &reference).0,
+                });
+                peer.push(PeerRun {
+                    scene: name.clone(),
+                    output: run.0,
+                });
+            }
             // Knobs at 4 spp against the default setting.
             let k = Shading { spp: 4, ..base };
             let (f0, s0) = go(&mut t, k)?;
@@ -287,26 +385,66 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
         }
     }
     let mut time_to_rows = Vec::new();
+    let (mut versus, mut time_ratio) = (Vec::new(), Vec::new());
     for g in MODELS {
         for mode in [Mode::Ao, Mode::Path] {
-            for sampler in [Sampler::Sobol, Sampler::Independent] {
-                let pts: Vec<&Point> = curve
+            let pts = |sampler: &str| -> Vec<&Point> {
+                curve
                     .iter()
                     .filter(|p| {
-                        p.scene == g.name() && p.mode == mode.name() && p.sampler == sampler.name()
+                        p.scene == g.name() && p.mode == mode.name() && p.sampler == sampler
                     })
-                    .collect();
+                    .collect()
+            };
+            let peer_pts = pts(PEER);
+            for sampler in [Sampler::Sobol.name(), Sampler::Independent.name(), PEER] {
+                let pts = pts(sampler);
+                if pts.is_empty() {
+                    continue;
+                }
                 for level in LEVELS {
                     let (spp, ms) = time_to(&pts, level);
                     time_to_rows.push(TimeTo {
                         scene: g.name().into(),
                         mode: mode.name().into(),
-                        sampler: sampler.name().into(),
+                        sampler: sampler.into(),
                         rmse: level,
                         spp,
                         ms,
                     });
                 }
+            }
+            if peer_pts.is_empty() {
+                continue;
+            }
+            let (sobol, independent) =
+                (pts(Sampler::Sobol.name()), pts(Sampler::Independent.name()));
+            for m in &peer_pts {
+                let at = |v: &[&Point]| v.iter().find(|p| p.spp == m.spp).map(|p| (p.rmse, p.ms));
+                if let (Some(s), Some(i)) = (at(&sobol), at(&independent)) {
+                    versus.push(Versus {
+                        scene: g.name().into(),
+                        mode: mode.name().into(),
+                        spp: m.spp,
+                        sobol_rmse: s.0,
+                        independent_rmse: i.0,
+                        peer_rmse: m.rmse,
+                        sobol_ms: s.1,
+                        independent_ms: i.1,
+                        peer_ms: m.ms,
+                    });
+                }
+            }
+            for level in LEVELS {
+                let (s, m) = (time_to(&sobol, level).1, time_to(&peer_pts, level).1);
+                time_ratio.push(TimeRatio {
+                    scene: g.name().into(),
+                    mode: mode.name().into(),
+                    rmse: level,
+                    sobol_ms: s,
+                    peer_ms: m,
+                    ratio: s.zip(m).map(|(s, m)| s / m),
+                });
             }
         }
     }
@@ -321,11 +459,78 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
         curve,
         time_to: time_to_rows,
         knobs,
+        peer,
+        agreement,
+        versus,
+        time_ratio,
     };
     if let Some(path) = a.plot {
         plot(&report.curve, path)?;
     }
     emit(a.json, &report, print)
+}
+
+/// The peer's curve's name among the samplers.
+const PEER: &str = "mitsuba";
+
+/// The peer's run: `(spp, ms, (RMSE, relative MSE))` at spp 1, 2, 4, .. `max_spp` against the
+/// reference, and its render at `ref_spp` (the converged comparison). The exchange directory is a
+/// temporary one, removed after a successful run and kept (and named) after a failed one.
+#[allow(clippy::type_complexity)]
+fn mitsuba_curve(
+    model: &dcrt::scene::Model,
+    basis: &dcrt::scene::CameraBasis,
+    sh: &Shading,
+    max_spp: u32,
+    ref_spp: u32,
+    reference: &[[f64; 3]],
+) -> Result<(
+    (mitsuba::Output, Vec<(u32, f64, (f64, f64))>),
+    Vec<[f32; 3]>,
+)> {
+    let mut spp: Vec<u32> = std::iter::successors(Some(1u32), |s| s.checked_mul(2))
+        .take_while(|&s| s <= max_spp)
+        .collect();
+    if !spp.contains(&ref_spp) {
+        spp.push(ref_spp);
+    }
+    let dir = std::env::temp_dir().join(format!("dcrt-mitsuba-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let kept = || format!("(exchange directory kept: {})", dir.display());
+    mitsuba::write_dir(
+        &dir,
+        model,
+        basis,
+        (sh.sky, sh.max_depth, sh.rr_depth, sh.seed),
+        &spp,
+    )?;
+    let out = mitsuba::run_script(&dir).with_context(kept)?;
+    let mut points = Vec::new();
+    let mut converged = None;
+    for &s in &spp {
+        let r = out
+            .renders
+            .iter()
+            .find(|r| r.spp == s)
+            .with_context(|| {
+                format!(
+                    "{} reported no render at {s} spp",
+                    mitsuba::script().display()
+                )
+            })
+            .with_context(kept)?;
+        let img = mitsuba::read_image(&dir.join(&r.file), basis.width, basis.height)
+            .with_context(kept)?;
+        if s <= max_spp {
+            points.push((s, r.seconds * 1e3, error_rgb(&img, reference)));
+        }
+        if s == ref_spp {
+            converged = Some(img);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let converged = converged.context("no converged render")?;
+    Ok(((out, points), converged))
 }
 
 fn print(report: &Report) {
@@ -382,6 +587,9 @@ fn print(report: &Report) {
             or(r.ms, 1),
         ]);
     }
+    if !report.peer.is_empty() {
+        print_peer(report);
+    }
     println!();
     let t = Table(&[
         ("scene", -9),
@@ -408,9 +616,80 @@ fn print(report: &Report) {
     }
 }
 
+fn print_peer(report: &Report) {
+    for r in &report.peer {
+        let o = &r.output;
+        println!(
+            "\n{}: Mitsuba {} {}, path max_depth {} rr_depth {}, {} threads; timed: {}",
+            r.scene, o.mitsuba, o.variant, o.max_depth, o.rr_depth, o.threads, o.timed
+        );
+    }
+    let t = Table(&[
+        ("scene", -9),
+        ("spp", 5),
+        ("sobol RMSE", 10),
+        ("indep RMSE", 10),
+        ("mitsuba RMSE", 12),
+        ("sobol/mi", 8),
+        ("indep/mi", 8),
+        ("sobol ms", 10),
+        ("indep ms", 10),
+        ("mitsuba ms", 10),
+    ]);
+    t.header();
+    for v in &report.versus {
+        t.row(&[
+            v.scene.clone(),
+            v.spp.to_string(),
+            format!("{:.5}", v.sobol_rmse),
+            format!("{:.5}", v.independent_rmse),
+            format!("{:.5}", v.peer_rmse),
+            format!("{:.2}", v.sobol_rmse / v.peer_rmse),
+            format!("{:.2}", v.independent_rmse / v.peer_rmse),
+            format!("{:.1}", v.sobol_ms),
+            format!("{:.1}", v.independent_ms),
+            format!("{:.1}", v.peer_ms),
+        ]);
+    }
+    println!();
+    let t = Table(&[
+        ("scene", -9),
+        ("to RMSE", 8),
+        ("sobol ms", 10),
+        ("mitsuba ms", 10),
+        ("ratio", 8),
+    ]);
+    t.header();
+    for r in &report.time_ratio {
+        let or = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
+        t.row(&[
+            r.scene.clone(),
+            format!("{}", r.rmse),
+            or(r.sobol_ms, 1),
+            or(r.peer_ms, 1),
+            or(r.ratio, 2),
+        ]);
+    }
+    for a in &report.agreement {
+        println!(
+            "converged {} {}: dcrt reference ({} spp) mean {:.5}, Mitsuba {} spp mean {:.5}, \
+             relative difference {:+.3}%, RMSE between them {:.5}",
+            a.scene,
+            a.mode,
+            a.reference_spp,
+            a.dcrt_mean,
+            a.peer_spp,
+            a.peer_mean,
+            100.0 * a.mean_rel_diff,
+            a.rmse
+        );
+    }
+}
+
 /// RMSE against spp (left) and against time (right), log-log, one colour per scene and mode:
 /// rm/ao red, rm/path orange, assembly/ao blue, assembly/path cyan; the Sobol' sampler with
-/// filled squares, the independent one in a lighter shade with hollow squares. Grid lines at
+/// filled squares, the independent one in a lighter shade with hollow squares, the peer (path
+/// only) in a darker shade with crosses. Grid lines at
 /// powers of 10 (error) and 2 (spp) or 10 (ms).
 fn plot(points: &[Point], path: &Path) -> Result<()> {
     use image::{Rgb, RgbImage};
@@ -465,11 +744,14 @@ fn plot(points: &[Point], path: &Path) -> Result<()> {
         }
         for ((scene, mode, full), sampler) in series
             .into_iter()
-            .flat_map(|s| ["sobol", "independent"].map(|m| (s, m)))
+            .flat_map(|s| ["sobol", "independent", PEER].map(|m| (s, m)))
         {
-            let hollow = sampler != "sobol";
+            let hollow = sampler == "independent";
+            let cross = sampler == PEER;
             let c = if hollow {
                 Rgb(full.0.map(|v| v / 2 + 128))
+            } else if cross {
+                Rgb(full.0.map(|v| v / 2))
             } else {
                 full
             };
@@ -485,6 +767,9 @@ fn plot(points: &[Point], path: &Path) -> Result<()> {
                 for dx in 0..5u32 {
                     for dy in 0..5u32 {
                         if hollow && (1..4).contains(&dx) && (1..4).contains(&dy) {
+                            continue;
+                        }
+                        if cross && dx != dy && dx != 4 - dy {
                             continue;
                         }
                         let (xx, yy) = ((x + dx).saturating_sub(2), (y + dy).saturating_sub(2));

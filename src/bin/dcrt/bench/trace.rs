@@ -2,7 +2,7 @@
 //! mode, with the traversal's counts (steps, node visits per node block, blocks entered), and
 //! optionally a native peer tracing the same camera rays in the same run (`--peer embree`).
 
-use super::{Table, emit, frame_stats, median};
+use super::{Peer, Table, emit, frame_stats, median};
 use crate::{BenchArgs, settings};
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
@@ -15,13 +15,6 @@ use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
 use dcrt::shading::{Mode, Shading};
 use std::path::{Path, PathBuf};
-
-/// A native tracer run beside dcrt on the same cores (`--peer`).
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum Peer {
-    /// Embree 3 (`rtcIntersect8` packets, a thread per core) through `scripts/embree-peer.sh`.
-    Embree,
-}
 
 /// The bench's AO rays per hit and path bounces: enough secondary rays to measure, few enough
 /// that a 1024x1024 frame stays short on a CPU adapter.
