@@ -590,7 +590,9 @@ fn a_different_camera_or_mode_on_one_rank_stops_every_rank() {
 }
 
 /// A render rank that stops (SIGSTOP: hung, not dead) mid-frame, or once its work is done:
-/// with `--timeout 3` the job ends with an error within 10 s.
+/// with `--timeout 3` the job ends with the watchdog's error within 20 s (start-up of four ranks
+/// on a loaded 2-core machine takes several seconds; without the watchdog the job ran 85-98 s
+/// and mpirun's 30 s limit here kills it).
 #[test]
 fn a_hung_rank_ends_the_job_within_its_timeout() {
     let fx = Fixture::new("cl-hung");
@@ -613,7 +615,7 @@ fn a_hung_rank_ends_the_job_within_its_timeout() {
         let err = stderr(&job.out);
         assert!(!job.out.status.success(), "{how}: the job succeeded: {err}");
         assert!(
-            job.elapsed < Duration::from_secs(10),
+            job.elapsed < Duration::from_secs(20),
             "{how}: the job took {:?}: {err}",
             job.elapsed
         );
