@@ -65,3 +65,30 @@ fn a_generator_too_large_for_memory_is_refused_with_its_size() {
     assert!(err.contains("lower the generators' `triangles`"), "{err}");
     assert!(!exists(&png));
 }
+
+/// The bench's option combinations that cannot be measured are refused, naming the option,
+/// before any work: a reference that cannot be split into whole halves, a peer with the wrong
+/// benchmark, a soak too short for a slope.
+#[test]
+fn bench_refuses_options_it_cannot_measure() {
+    for (args, expect) in [
+        (
+            &["--shading", "--reference-spp", "0"][..],
+            "--reference-spp must be a multiple of 8",
+        ),
+        (&["--shading", "--reference-spp", "12"], "got 12"),
+        (&["--peer", "mitsuba"], "--peer mitsuba needs --shading"),
+        (
+            &["--peer", "embree", "--shading"],
+            "--peer embree measures primary rays",
+        ),
+        (&["--soak", "5"], "--soak needs at least 20 frames, got 5"),
+    ] {
+        let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];
+        all.extend(args.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));
+        let out = dcrt(&all);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?}: {err}");
+        assert!(err.contains(expect), "{args:?}: {err}");
+    }
+}

@@ -42,6 +42,11 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         );
     }
     check_budget(a.gpu.step_budget)?;
+    if let Some(frames) = a.soak
+        && frames < 20
+    {
+        bail!("--soak needs at least 20 frames, got {frames}");
+    }
     match a.peer {
         Some(Peer::Mitsuba) if !a.shading => bail!("--peer mitsuba needs --shading"),
         Some(Peer::Embree) if a.shading || a.dc || a.cluster || a.soak.is_some() => {
@@ -54,6 +59,13 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     if a.shading {
         if a.max_spp == 0 {
             bail!("--max-spp must be at least 1");
+        }
+        // Two halves of the path reference, and of AO's quarter, need whole samples.
+        if a.reference_spp < 8 || !a.reference_spp.is_multiple_of(8) {
+            bail!(
+                "--reference-spp must be a multiple of 8 (two renders of half each; AO's are a quarter), got {}",
+                a.reference_spp
+            );
         }
         let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
         let small = |v: u32| if v == 1024 { 32 } else { v };

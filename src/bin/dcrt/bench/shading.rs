@@ -230,8 +230,8 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
             // seeds: unbiased per pixel, and unrelated to either sampler's curve.
             go(&mut t, Shading { spp: 1, ..base })?;
             let ref_spp = match mode {
-                Mode::Ao => (a.reference_spp / 4).max(2),
-                _ => a.reference_spp.max(2),
+                Mode::Ao => a.reference_spp / 4,
+                _ => a.reference_spp,
             };
             let mut half = Shading {
                 spp: ref_spp / 2,

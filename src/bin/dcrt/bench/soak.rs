@@ -4,7 +4,7 @@
 
 use super::{Table, emit};
 use crate::{BenchArgs, settings};
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
@@ -67,9 +67,6 @@ pub fn run(
     format: Format,
 ) -> Result<()> {
     let frames = a.soak.unwrap_or(0);
-    if frames < 20 {
-        bail!("--soak needs at least 20 frames, got {frames}");
-    }
     let triangles = model.triangles.len();
     let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
     // The first of --caches, `none` replicating; as rank --rank of --virtual-ranks.
