@@ -51,9 +51,10 @@ fn main() {
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);
         let n = node_at(locate(l.x), l.y);
-        putf(n.lo.x); putf(n.lo.y); putf(n.lo.z);
-        putf(n.hi.x); putf(n.hi.y); putf(n.hi.z);
-        put(n.index); put(n.count);
+        putf(n.origin.x); putf(n.origin.y); putf(n.origin.z); put(n.exponents);
+        put(n.child_base); put(n.tri_base); put(n.counts); put(0u);
+        put(n.lo.x); put(n.lo.y); put(n.lo.z);
+        put(n.hi.x); put(n.hi.y); put(n.hi.z); put(0u); put(0u);
     }
     for (var i = 0u; i < p.pad1; i++) {
         let l = tri_loc(i);
@@ -67,7 +68,7 @@ fn main() {
         let r = probe_rays[i];
         putf(r.ox); putf(r.oy); putf(r.oz); putf(r.t);
         putf(r.dx); putf(r.dy); putf(r.dz); put(r.hit);
-        put(r.node); put(r.sp); put(r.status); put(r.steps);
+        put(r.sp); put(r.status); put(r.steps);
         put(r.cur_index); put(r.cur_count); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
         put(r.wait_block); put(r.flags);

@@ -22,7 +22,7 @@ fn finite3(v: vec3<f32>) -> bool {
 // The root node's box, padded far beyond rounding: every child box a traversal could enter lies
 // inside it. The root block is resident on every rank, so this never faults.
 fn hits_root(o: vec3<f32>, d: vec3<f32>) -> bool {
-    let root = node_at(locate(0u), 0u);
+    let root = node_bounds(node_at(locate(0u), 0u));
     let pad = (root.hi - root.lo) * 1e-3 + max(abs(root.lo), abs(root.hi)) * 1e-5;
     return box_entry(root.lo - pad, root.hi + pad, o, safe_inverse(d), FAR) >= 0.0;
 }

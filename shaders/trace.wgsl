@@ -12,8 +12,8 @@
 #import offset
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
-// Per ray `stack_size` entries of (index, count, entry distance bits, node): the content of the
-// node pushed, read with its sibling, so that a pop needs no block read.
+// Per ray `stack_size` entries of (index, count, entry distance bits, 0): a child as its parent's
+// slot gives it (node `index` when `count` is 0, else `count` triangles from `index`).
 @group(1) @binding(1) var<storage, read_write> stacks: array<vec4<u32>>;
 @group(1) @binding(2) var<storage, read> live_in: array<u32>;
 @group(1) @binding(3) var<storage, read> counter_in: array<u32, 4>;
@@ -37,9 +37,6 @@ struct Stats {
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 
-// Stack entries held in registers (s0..s3 in main).
-const SHORT_STACK: u32 = 4u;
-
 var<workgroup> wg_steps: atomic<u32>;
 var<workgroup> wg_tris: atomic<u32>;
 var<workgroup> wg_suspended: atomic<u32>;
@@ -49,6 +46,29 @@ var<workgroup> wg_misses: atomic<u32>;
 var<workgroup> wg_visits: atomic<u32>;
 var<workgroup> wg_entries: atomic<u32>;
 var<workgroup> wg_tri_entries: atomic<u32>;
+
+// An entry's distance bits for a child the ray misses: above every hit's (a non-negative f32's
+// bits order as the f32 does).
+const MISS: u32 = 0xffffffffu;
+
+// Slot i of node n as a stack entry (index, count, entry distance bits or MISS, 0).
+fn child_entry(n: Node, step: vec3<f32>, i: u32, index: u32, org: vec3<f32>, inv: vec3<f32>,
+               tmax: f32) -> vec4<u32> {
+    let c = (n.counts >> (8u * i)) & 0xffu;
+    let b = child_box(n, step, i);
+    let t = box_entry(b.lo, b.hi, org, inv, tmax);
+    let key = select(MISS, bitcast<u32>(t), t >= 0.0 && c != EMPTY);
+    return vec4(index, select(c, 0u, c == INNER), key, 0u);
+}
+
+// The nearer of two entries first (a compare-exchange of a sorting network).
+fn near_first(a: ptr<function, vec4<u32>>, b: ptr<function, vec4<u32>>) {
+    let x = *a;
+    let y = *b;
+    let swap = y.z < x.z;
+    *a = select(x, y, swap);
+    *b = select(y, x, swap);
+}
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
@@ -74,7 +94,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // A ray with NaN, infinite or zero inputs ends at once as a miss, whoever made it.
         let valid = ray_valid(r);
         if !valid {
-            r.node = NONE;
+            r.cur_count = NONE;
             r.sp = 0u;
             r.hit = NONE;
         }
@@ -100,167 +120,114 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var hit_slot = 0u;
         var hit_b = vec3(0.0);
         var last_tri_block = NONE;
-        // The node being visited, already read when `have`: a child chosen at its parent is not
-        // read twice, and a resumed ray needs only the block it faulted on.
-        var cur: Node;
-        // The top of the stack in four named registers, s0 the top: on a CPU driver a
-        // dynamically indexed buffer is a per-lane gather or scatter loop, a select is not. The
-        // global stack takes an entry only when a fifth is pushed, and the registers at the end
-        // of the round; a round starts with them empty and pops from the global stack.
-        var nreg = 0u;
-        var s0 = vec4(0u);
-        var s1 = vec4(0u);
-        var s2 = vec4(0u);
-        var s3 = vec4(0u);
-        var have = r.cur_count != NONE;
-        cur.index = r.cur_index;
-        cur.count = r.cur_count;
+        // What is visited next, as a stack entry holds it (RayState.cur_index, cur_count).
+        var cur = vec2(r.cur_index, r.cur_count);
         loop {
-            if r.node == NONE {
-                if r.sp == 0u {
-                    r.status = DONE;
-                    break;
-                }
-                if iters >= params.step_budget {
-                    break;
-                }
-                iters += 1u;
-                r.sp -= 1u;
-                var e = s0;
-                if nreg == 0u {
-                    e = stacks[base + r.sp];
-                } else {
-                    nreg -= 1u;
-                    s0 = s1;
-                    s1 = s2;
-                    s2 = s3;
-                }
-                // Entries farther than the closest hit found since they were pushed are culled.
-                if !(bitcast<f32>(e.z) <= r.t) {
-                    continue;
-                }
-                // The entry holds the node's content: it is visited in this same iteration.
-                r.node = e.w;
-                cur.index = e.x;
-                cur.count = e.y;
-                have = true;
+            if cur.y == NONE && r.sp == 0u {
+                r.status = DONE;
+                break;
             }
             if iters >= params.step_budget {
                 break;
             }
-            if !have {
-                let l = node_loc(r.node);
-                let row = locate(l.x);
-                if row == NONE {
-                    r.wait_block = l.x;
-                    suspended = true;
-                    break;
+            iters += 1u;
+            if cur.y == NONE {
+                r.sp -= 1u;
+                let e = stacks[base + r.sp];
+                // Entries farther than the closest hit found since they were pushed are culled.
+                if !(bitcast<f32>(e.z) <= r.t) {
+                    continue;
                 }
-                cur = node_at(row, l.y);
-                have = true;
+                // Visited in this same iteration.
+                cur = e.xy;
             }
-            if cur.count == 0u {
-                // Both children share a block: pairs never straddle one.
-                let l = node_loc(cur.index);
+            if cur.y == 0u {
+                let l = node_loc(cur.x);
                 let row = locate(l.x);
                 if row == NONE {
                     r.wait_block = l.x;
                     suspended = true;
                     break;
                 }
-                iters += 1u;
                 visits += 1u;
                 entries += u32(l.x != last_block);
                 last_block = l.x;
-                let a = node_at(row, l.y);
-                let b = node_at(row, l.y + 1u);
-                let ta = box_entry(a.lo, a.hi, org, inv, r.t);
-                let tb = box_entry(b.lo, b.hi, org, inv, r.t);
-                if ta >= 0.0 && tb >= 0.0 {
-                    let a_first = ta <= tb;
-                    if r.sp >= params.stack_size {
-                        r.status = OVERFLOW;
-                        break;
-                    }
-                    let far = select(vec2(a.index, a.count), vec2(b.index, b.count), a_first);
-                    let far_node = select(cur.index, cur.index + 1u, a_first);
-                    if nreg == SHORT_STACK {
-                        stacks[base + r.sp - SHORT_STACK] = s3;
-                    } else {
-                        nreg += 1u;
-                    }
-                    s3 = s2;
-                    s2 = s1;
-                    s1 = s0;
-                    s0 = vec4(far, bitcast<u32>(select(ta, tb, a_first)), far_node);
-                    r.sp += 1u;
-                    if a_first {
-                        r.node = cur.index;
-                        cur = a;
-                    } else {
-                        r.node = cur.index + 1u;
-                        cur = b;
-                    }
-                } else if ta >= 0.0 {
-                    r.node = cur.index;
-                    cur = a;
-                } else if tb >= 0.0 {
-                    r.node = cur.index + 1u;
-                    cur = b;
-                } else {
-                    r.node = NONE;
-                    have = false;
-                }
-            } else {
-                // Leaf. Its triangles may span two blocks: a fault part-way keeps the untested
-                // rest as the current node, so a resumed ray never needs the first block again
-                // (with one cache line it would evict the second).
-                iters += 1u + cur.count;
-                var rest = 0u;
-                var stop = false;
-                for (var k = 0u; k < cur.count; k++) {
-                    let l = tri_loc(cur.index + k);
-                    let row = locate(l.x);
-                    if row == NONE {
-                        r.wait_block = l.x;
-                        rest = cur.count - k;
-                        break;
-                    }
-                    tests += 1u;
-                    tri_entries += u32(l.x != last_tri_block);
-                    last_tri_block = l.x;
-                    let tri = tri_at(row, l.y);
-                    let th = intersect(tri, org, sh, r.t, camera);
-                    if th.t > 0.0 {
-                        r.t = th.t;
-                        r.hit = cur.index + k;
-                        found = true;
-                        hit_row = row;
-                        hit_slot = l.y;
-                        hit_b = th.b;
-                        // Shadow and occlusion rays need any hit, not the closest.
-                        if (r.flags & ANY_HIT) != 0u {
-                            stop = true;
-                            break;
-                        }
-                    }
-                }
-                if stop {
-                    r.status = DONE;
-                    r.node = NONE;
-                    r.sp = 0u;
-                    nreg = 0u;
-                    have = false;
+                let n = node_at(row, l.y);
+                let step = node_step(n);
+                // Inner children are adjacent from child_base, leaves' triangles from tri_base,
+                // both in slot order.
+                var ci = n.child_base;
+                var ti = n.tri_base;
+                let c = (vec4(n.counts) >> vec4(0u, 8u, 16u, 24u)) & vec4(0xffu);
+                let inner = c == vec4(INNER);
+                var e0 = child_entry(n, step, 0u, select(ti, ci, inner.x), org, inv, r.t);
+                ci += u32(inner.x);
+                ti += select(c.x, 0u, inner.x);
+                var e1 = child_entry(n, step, 1u, select(ti, ci, inner.y), org, inv, r.t);
+                ci += u32(inner.y);
+                ti += select(c.y, 0u, inner.y);
+                var e2 = child_entry(n, step, 2u, select(ti, ci, inner.z), org, inv, r.t);
+                ci += u32(inner.z);
+                ti += select(c.z, 0u, inner.z);
+                var e3 = child_entry(n, step, 3u, select(ti, ci, inner.w), org, inv, r.t);
+                near_first(&e0, &e1);
+                near_first(&e2, &e3);
+                near_first(&e0, &e2);
+                near_first(&e1, &e3);
+                near_first(&e1, &e2);
+                // The nearest is visited next, the others pushed farthest first.
+                let pushes = u32(e1.z != MISS) + u32(e2.z != MISS) + u32(e3.z != MISS);
+                if r.sp + pushes > params.stack_size {
+                    r.status = OVERFLOW;
                     break;
                 }
-                if rest > 0u {
-                    cur.index += cur.count - rest;
-                    cur.count = rest;
+                if e3.z != MISS {
+                    stacks[base + r.sp] = e3;
+                    r.sp += 1u;
+                }
+                if e2.z != MISS {
+                    stacks[base + r.sp] = e2;
+                    r.sp += 1u;
+                }
+                if e1.z != MISS {
+                    stacks[base + r.sp] = e1;
+                    r.sp += 1u;
+                }
+                cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
+            } else {
+                // One triangle of a leaf per iteration, the rest kept as the current entry: a
+                // loop over the leaf would run, in every lane, as often as the longest leaf
+                // among them. A fault on a leaf that spans two blocks keeps the untested rest, so
+                // a resumed ray never needs the first block again (with one cache line it would
+                // evict the second).
+                let l = tri_loc(cur.x);
+                let row = locate(l.x);
+                if row == NONE {
+                    r.wait_block = l.x;
                     suspended = true;
                     break;
                 }
-                r.node = NONE;
-                have = false;
+                tests += 1u;
+                tri_entries += u32(l.x != last_tri_block);
+                last_tri_block = l.x;
+                let tri = tri_at(row, l.y);
+                let th = intersect(tri, org, sh, r.t, camera);
+                if th.t > 0.0 {
+                    r.t = th.t;
+                    r.hit = cur.x;
+                    found = true;
+                    hit_row = row;
+                    hit_slot = l.y;
+                    hit_b = th.b;
+                    // Shadow and occlusion rays need any hit, not the closest.
+                    if (r.flags & ANY_HIT) != 0u {
+                        r.status = DONE;
+                        r.sp = 0u;
+                        cur.y = NONE;
+                        break;
+                    }
+                }
+                cur = select(vec2(cur.x + 1u, cur.y - 1u), vec2(0u, NONE), cur.y == 1u);
             }
         }
         if found {
@@ -279,24 +246,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
             r.prim = prim_id_at(hit_row, hit_slot);
         }
-        // The registers go back to their places in the global stack for the next round.
-        if nreg > 0u {
-            stacks[base + r.sp - 1u] = s0;
-        }
-        if nreg > 1u {
-            stacks[base + r.sp - 2u] = s1;
-        }
-        if nreg > 2u {
-            stacks[base + r.sp - 3u] = s2;
-        }
-        if nreg > 3u {
-            stacks[base + r.sp - 4u] = s3;
-        }
         if !valid {
             r.status = OUTSIDE;
         }
-        r.cur_index = cur.index;
-        r.cur_count = select(NONE, cur.count, have && r.node != NONE);
+        r.cur_index = cur.x;
+        r.cur_count = cur.y;
         r.steps += iters;
         rays[ray_index] = r;
         again = r.status == LIVE;

@@ -1,8 +1,8 @@
 //! dcrt: a GPU-compute ray tracer for massive triangle models, after the distributed-cache
 //! cluster ray tracer of Ize, Brownlee & Hansen (EGPGV 2011).
 //!
-//! Data flows `scene` (TOML, meshes, generators) → `bvh` (obvhs build, our 32-byte node format in
-//! blocked layout) → `blocks` (8 KiB node and triangle blocks) → `gpu` (WGSL compute: ray
+//! Data flows `scene` (TOML, meshes, generators) → `bvh` (obvhs build, collapsed to our 4-wide quantized
+//! 64-byte nodes in blocked layout) → `blocks` (8 KiB node and triangle blocks) → `gpu` (WGSL compute: ray
 //! generation, budgeted traversal rounds, shading) → `output` (PNG, EXR). `reference` is an
 //! independent f64 reference tracer used as the oracle in tests.
 

@@ -17,12 +17,11 @@ struct RayState {
     t: f32,       // closest hit so far (the ray's tmax)
     dx: f32, dy: f32, dz: f32,
     hit: u32,     // triangle index (BVH order) of the closest hit, or NONE
-    node: u32,    // node to visit next, or NONE to pop the stack
     sp: u32,      // stack entries in use
     status: u32,
     steps: u32,   // loop iterations taken so far
-    // The content of `node` when already read (`cur_count` NONE when not): a resumed ray need
-    // not read its parent's block again.
+    // What the ray visits next, as a stack entry holds it: node `cur_index` when `cur_count` is
+    // 0, else `cur_count` triangles from `cur_index`; `cur_count` NONE to pop the stack.
     cur_index: u32,
     cur_count: u32,
     // Recorded when the closest hit is found, while its block is at hand: shading then needs no
@@ -44,9 +43,9 @@ const ANY_HIT: u32 = 1u;
 // leaves, so a hit needs no proof that it lies in front of the origin beyond rounding.
 const FROM_CAMERA: u32 = 2u;
 
-// A ray that has not started traversal: no hit, at the root, nothing read yet.
+// A ray that has not started traversal: no hit, the root next.
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32) -> RayState {
-    return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, 0u, status, 0u, 0u, NONE, NONE,
+    return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
                     0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0);
 }
 

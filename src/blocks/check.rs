@@ -5,7 +5,7 @@
 
 use super::file::Meta;
 use super::{Blocks, Format, NODE_WORDS, TRI_WORDS};
-use crate::bvh::layout::PAD;
+use crate::bvh::{Child, EMPTY, INNER, Node, WIDTH};
 
 /// The metadata agrees with the header's block counts and is itself consistent.
 pub fn meta(m: &Meta, format: Format, node_blocks: u32, tri_blocks: u32) -> Result<(), String> {
@@ -79,25 +79,9 @@ pub fn block(
             if i >= m.nodes {
                 break;
             }
-            if i == PAD as u64 {
-                continue;
-            }
             let w = &words[(s * NODE_WORDS) as usize..((s + 1) * NODE_WORDS) as usize];
-            let (index, count) = (u64::from(w[6]), u64::from(w[7]));
-            if count > 0 {
-                if index + count > m.triangles {
-                    return Err(format!(
-                        "node {i}: leaf triangles {index}..{} past the {} triangles",
-                        index + count,
-                        m.triangles
-                    ));
-                }
-            } else if index <= i || index % 2 != 0 || index + 1 >= m.nodes {
-                return Err(format!(
-                    "node {i}: children at {index} are not an even pair after it within the {} nodes",
-                    m.nodes
-                ));
-            }
+            node(i, bytemuck::from_bytes(bytemuck::cast_slice(w)), m)
+                .map_err(|e| format!("node {i}: {e}"))?;
         }
     } else {
         let tpb = format.tris_per_block();
@@ -123,6 +107,48 @@ pub fn block(
     Ok(())
 }
 
+/// Node `i`'s children lie after it within the node list, its leaves' triangles within the
+/// triangle list, its grid is finite and each used slot's box is not inside out.
+fn node(i: u64, n: &Node, m: &Meta) -> Result<(), String> {
+    let counts: Vec<u32> = (0..WIDTH).map(|s| (n.counts >> (8 * s)) & 0xff).collect();
+    if counts.iter().all(|&c| c == EMPTY) {
+        return Err("no children".into());
+    }
+    let inner = counts.iter().filter(|&&c| c == INNER).count() as u64;
+    let base = u64::from(n.child_base);
+    if inner > 0 && (base <= i || base + inner > m.nodes) {
+        return Err(format!(
+            "children at {base}..{} do not lie after it within the {} nodes",
+            base + inner,
+            m.nodes
+        ));
+    }
+    let leaf: u64 = counts
+        .iter()
+        .filter(|&&c| c != INNER)
+        .map(|&c| u64::from(c))
+        .sum();
+    let first = u64::from(n.tri_base);
+    if first + leaf > m.triangles {
+        return Err(format!(
+            "leaf triangles {first}..{} past the {} triangles",
+            first + leaf,
+            m.triangles
+        ));
+    }
+    let far = |a: usize| n.origin[a] + 255.0 * n.step(a);
+    if !(0..3).all(|a| n.origin[a].is_finite() && far(a).is_finite()) {
+        return Err("its grid is not finite".into());
+    }
+    for (s, &c) in counts.iter().enumerate() {
+        let (l, h) = n.child_box(s);
+        if c != EMPTY && !(0..3).all(|a| l[a] <= h[a]) {
+            return Err(format!("slot {s}: bounds {l:?}..{h:?} are inside out"));
+        }
+    }
+    Ok(())
+}
+
 /// With every block at hand: the tree's depth is the declared one (the GPU's traversal stack is
 /// sized by it). Run after `block` has checked each block, so children lie after parents and the
 /// walk ends.
@@ -137,9 +163,10 @@ pub fn depth(blocks: &Blocks, declared: u32) -> Result<(), String> {
             ));
         }
         let n = blocks.node(i);
-        if !n.is_leaf() {
-            stack.push((n.index, d + 1));
-            stack.push((n.index + 1, d + 1));
+        for s in 0..WIDTH {
+            if let Child::Inner(c) = n.child(s) {
+                stack.push((c, d + 1));
+            }
         }
     }
     if deepest != declared {

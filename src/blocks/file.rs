@@ -6,7 +6,7 @@
 //! | offset | bytes | field |
 //! |--------|-------|-------|
 //! | 0 | 8 | magic `DCRTBLK\0` |
-//! | 8 | 4 | version (2) |
+//! | 8 | 4 | version (3) |
 //! | 12 | 4 | block size in bytes |
 //! | 16 | 4 | node blocks |
 //! | 20 | 4 | triangle blocks |
@@ -18,8 +18,9 @@
 //! | 44+M | 4 per block | CRC-32 of each block |
 //! | data | block size per block | the blocks in id order |
 //!
-//! Version 1 had no header checksum: a flipped bit in the metadata rendered another view. It is
-//! refused with a request to prepare the file again. On load the metadata is checked against the
+//! Version 1 had no header checksum: a flipped bit in the metadata rendered another view.
+//! Version 2 held binary 32-byte nodes; version 3 holds 4-wide quantized ones (`bvh::Node`).
+//! Older versions are refused with a request to prepare the file again. On load the metadata is checked against the
 //! header (counts, bounds, mesh table) and every block read is checked for structure (child and
 //! leaf ranges, see `check`), so an edited block whose CRC was recomputed is refused too.
 
@@ -33,7 +34,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: &[u8; 8] = b"DCRTBLK\0";
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 const FIXED: usize = 44;
 const ALIGN: u64 = 4096;
 
@@ -153,9 +154,14 @@ impl DcbFile {
             return Err(bad("format version 0 is not valid".into()));
         }
         if version < VERSION {
+            let why = if version == 1 {
+                "has no header checksum"
+            } else {
+                "holds binary BVH nodes"
+            };
             return Err(bad(format!(
-                "format version {version} has no header checksum (this dcrt reads {VERSION}); \
-                 prepare it again with this dcrt"
+                "format version {version} {why} (this dcrt reads {VERSION}); \
+                 prepare it again with `dcrt prepare`"
             )));
         }
         let format = Format::new(u(12)).map_err(|e| bad(e.to_string()))?;
@@ -285,7 +291,7 @@ impl DcbFile {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::{Bvh, Preset};
+    use crate::bvh::{Bvh, Child, Preset, WIDTH};
     use crate::scene::Model;
 
     fn sample() -> (Blocks, Meta) {
@@ -358,11 +364,14 @@ mod tests {
         b[0] = b'X';
         check(&b, "bad magic");
         let mut b = good.clone();
-        b[8] = 3;
+        b[8] = 4;
         check(&b, "newer");
         let mut b = good.clone();
         b[8] = 1;
         check(&b, "version 1 has no header checksum");
+        let mut b = good.clone();
+        b[8] = 2;
+        check(&b, "version 2 holds binary BVH nodes");
         // One flipped bit in the metadata: another camera, caught by the header checksum.
         let mut b = good.clone();
         let at = FIXED + find(&b[FIXED..], b"\"focal_point\":[").unwrap() + 15;
@@ -401,7 +410,7 @@ mod tests {
             m
         };
         check(&blocks, &m(&|m| m.triangles = 1), "metadata: 1 triangles");
-        check(&blocks, &m(&|m| m.nodes += 4096), "node blocks of 256");
+        check(&blocks, &m(&|m| m.nodes += 4096), "node blocks of 128");
         check(&blocks, &m(&|m| m.bounds_min[0] = 1e30), "not a finite box");
         check(&blocks, &m(&|m| m.mesh_first = vec![0, 5000]), "mesh table");
         check(&blocks, &m(&|m| m.bvh_depth += 1), "declares");
@@ -421,19 +430,29 @@ mod tests {
             &meta,
             "block 0 (owner rank 0): malformed: node 0",
         );
+        // Word 4 is the root's `child_base`, 5 its `tri_base`.
         check(
-            &edit(&|b| b.words[6] = 4_000_000),
+            &edit(&|b| b.words[4] = 4_000_000),
             &meta,
             "node 0: children",
         );
-        let leaf = (0..meta.nodes as u32)
-            .find(|&i| blocks.node(i).is_leaf())
+        let leafy = (0..meta.nodes as u32)
+            .find(|&i| (0..WIDTH).any(|s| matches!(blocks.node(i).child(s), Child::Leaf { .. })))
             .unwrap();
-        let w = leaf as usize * 8 + 7;
+        let w = leafy as usize * 16 + 5;
         check(
             &edit(&|b| b.words[w] = 1 << 20),
             &meta,
-            &format!("node {leaf}: leaf"),
+            &format!("node {leafy}: leaf"),
+        );
+        // A lower bound above the upper one: a box no ray enters.
+        check(
+            &edit(&|b| {
+                b.words[8] = 0xffff_ffff;
+                b.words[11] = 0;
+            }),
+            &meta,
+            "node 0: slot 0: bounds",
         );
         let id = (blocks.node_blocks * blocks.format.words() + blocks.format.id_word()) as usize;
         check(&edit(&|b| b.words[id] = 9999), &meta, "primitive id 9999");

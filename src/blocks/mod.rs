@@ -4,7 +4,7 @@
 //! block is `block_bytes` long, seen by the GPU as one row of `block_bytes / 16` `Rgba32Uint`
 //! texels. Byte layouts (little-endian u32 words):
 //!
-//! - node block: `nodes_per_block = block_bytes / 32` nodes of 8 words (`bvh::Node`).
+//! - node block: `nodes_per_block = block_bytes / 64` nodes of 16 words (`bvh::Node`).
 //! - triangle block: `tris_per_block = block_bytes / 40` triangles of 9 words (v0, v1, v2 as f32
 //!   xyz) from word 0, then their primitive ids (one u32 each) from word `9 * tris_per_block`;
 //!   zeros after. Keeping the id in the block costs 4 bytes a triangle and means the block a ray
@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 
 pub const DEFAULT_BLOCK_BYTES: u32 = 8192;
 pub const TEXEL_BYTES: u32 = 16;
-const NODE_WORDS: u32 = 8;
+const NODE_WORDS: u32 = 16;
 const TRI_WORDS: u32 = 9;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -28,7 +28,7 @@ pub struct Format {
 
 impl Format {
     pub fn new(block_bytes: u32) -> Result<Format> {
-        // 64 bytes is one sibling pair; the texture row width caps the top.
+        // 64 bytes is one node; the texture row width caps the top.
         if !(64..=256 * 1024).contains(&block_bytes) || !block_bytes.is_multiple_of(64) {
             return Err(Error::Invalid(format!(
                 "block size {block_bytes} bytes: must be a multiple of 64 from 64 to 262144"
@@ -131,12 +131,12 @@ impl Blocks {
         self.words.len() as u64 * 4
     }
 
-    /// Node `i`, read back from its block (the CPU mirror of the shader's `load_node`).
+    /// Node `i`, read back from its block (the CPU mirror of the shader's `node_at`).
     pub fn node(&self, i: u32) -> Node {
         let npb = self.format.nodes_per_block();
         let b = self.block(i / npb);
         let w = ((i % npb) * NODE_WORDS) as usize;
-        *bytemuck::from_bytes(bytemuck::cast_slice(&b[w..w + 8]))
+        *bytemuck::from_bytes(bytemuck::cast_slice(&b[w..w + NODE_WORDS as usize]))
     }
 
     /// Triangle `t` (BVH order) and its primitive id.
@@ -159,7 +159,7 @@ mod tests {
     #[test]
     fn default_format_matches_the_design() {
         let f = Format::default();
-        assert_eq!(f.nodes_per_block(), 256);
+        assert_eq!(f.nodes_per_block(), 128);
         assert_eq!(f.tris_per_block(), 204);
         assert_eq!(f.texels(), 512);
         assert!(f.id_word() + f.tris_per_block() <= f.words());

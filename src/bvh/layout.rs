@@ -1,11 +1,13 @@
-//! Conversion of an obvhs BVH2 to our node format in the blocked layout.
+//! Conversion of an obvhs BVH2 to our 4-wide node format in the blocked layout.
 //!
-//! Nodes are written treelet by treelet: breadth-first over the first `B` nodes below a treelet
-//! root, then the same, depth-first, for each child pair the treelet left out. Smaller treelets
-//! follow each other with no gaps (chapter 5.3.1), so a node block mostly holds one complete
-//! subtree and a ray entering it takes about log2(B) steps before it needs another block.
+//! Each wide node takes a BVH2 node's two children and, while it has fewer than `WIDTH`, opens
+//! the inner child with the largest surface area in its place. Nodes are written treelet by
+//! treelet: breadth-first over the first `B` nodes below a treelet root, a node's inner children
+//! always adjacent, then the same, depth-first, for each node whose children the treelet left
+//! out (chapter 5.3.1). Triangles follow in depth-first order, a node's leaves adjacent (chapter
+//! 5.3.2), so neighbouring leaves share triangle blocks.
 
-use super::Node;
+use super::{EMPTY, INNER, MAX_LEAF, Node, WIDTH};
 use obvhs::bvh2::Bvh2;
 use std::collections::VecDeque;
 
@@ -16,85 +18,135 @@ pub struct Laid {
     pub depth: u32,
 }
 
-/// Index of the pad node that follows the root so that sibling pairs start at even indices.
-pub const PAD: usize = 1;
+/// The BVH2 nodes a wide node over BVH2 node `i` holds, in slot order.
+fn collapse(bvh: &Bvh2, i: usize) -> Vec<usize> {
+    let old = &bvh.nodes;
+    let n = &old[i];
+    if n.prim_count > 0 {
+        // A lone leaf (a root over few triangles) becomes the root's only child.
+        return vec![i];
+    }
+    let c = n.first_index as usize;
+    let mut kids = vec![c, c + 1];
+    while kids.len() < WIDTH {
+        let open = kids
+            .iter()
+            .enumerate()
+            .filter(|&(_, &k)| old[k].prim_count == 0)
+            .max_by(|a, b| {
+                old[*a.1]
+                    .aabb
+                    .half_area()
+                    .total_cmp(&old[*b.1].aabb.half_area())
+            });
+        let Some((at, &k)) = open else { break };
+        let g = old[k].first_index as usize;
+        kids[at] = g;
+        kids.insert(at + 1, g + 1);
+    }
+    kids
+}
 
 pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
-    let treelet = treelet.max(4);
+    let treelet = treelet.max(1);
     let old = &bvh.nodes;
-    // Triangles in BVH in-order (left subtree first), so that neighbouring leaves share blocks.
-    let mut leaf_first = vec![0u32; old.len()];
-    let mut triangles = Vec::with_capacity(input.len());
-    let mut prim_ids = Vec::with_capacity(input.len());
-    let mut depth = 0u32;
-    let mut stack = vec![(0usize, 1u32)];
-    while let Some((i, d)) = stack.pop() {
-        depth = depth.max(d);
-        let n = &old[i];
-        if n.prim_count > 0 {
-            leaf_first[i] = triangles.len() as u32;
-            let first = n.first_index as usize;
-            for &p in &bvh.primitive_indices[first..first + n.prim_count as usize] {
-                triangles.push(input[p as usize]);
-                prim_ids.push(p);
-            }
-        } else {
-            let c = n.first_index as usize;
-            stack.push((c + 1, d + 1));
-            stack.push((c, d + 1));
+    let is_leaf = |k: usize| old[k].prim_count > 0;
+    // Placement: `kids[n]` are the BVH2 nodes of wide node n's slots; its inner children are
+    // placed adjacently, from `base[n]`.
+    let mut kids: Vec<Vec<usize>> = vec![collapse(bvh, 0)];
+    let mut base: Vec<u32> = vec![0];
+    // Places the inner children of wide node `n`, returning their indices.
+    let place = |kids: &mut Vec<Vec<usize>>, base: &mut Vec<u32>, n: usize| {
+        let at = kids.len();
+        base[n] = at as u32;
+        let inner: Vec<usize> = kids[n].iter().copied().filter(|&k| !is_leaf(k)).collect();
+        for &k in &inner {
+            kids.push(collapse(bvh, k));
+            base.push(0);
         }
-    }
-
-    let convert = |i: usize| {
-        let n = &old[i];
-        Node {
-            min: n.aabb.min.to_array(),
-            max: n.aabb.max.to_array(),
-            index: if n.prim_count > 0 { leaf_first[i] } else { 0 },
-            count: n.prim_count,
-        }
+        at..at + inner.len()
     };
-    let mut nodes = Vec::with_capacity(old.len() + 1);
-    nodes.push(convert(0));
-    nodes.push(Node::default());
-
-    // Places the child pair of `(old, new)`, returning the two children.
-    let place_pair = |nodes: &mut Vec<Node>, (o, n): (usize, usize)| {
-        let c = old[o].first_index as usize;
-        let at = nodes.len();
-        debug_assert!(at.is_multiple_of(2));
-        nodes[n].index = at as u32;
-        nodes.push(convert(c));
-        nodes.push(convert(c + 1));
-        [(c, at), (c + 1, at + 1)]
-    };
+    let inner_count =
+        |kids: &Vec<Vec<usize>>, n: usize| kids[n].iter().filter(|&&k| !is_leaf(k)).count();
     // Each entry is a node whose children still have to be placed: it starts a treelet.
-    let mut pending: Vec<(usize, usize)> = Vec::new();
-    let grow = |nodes: &mut Vec<Node>,
-                pending: &mut Vec<(usize, usize)>,
-                start: &[(usize, usize)],
+    let mut pending: Vec<usize> = Vec::new();
+    let grow = |kids: &mut Vec<Vec<usize>>,
+                base: &mut Vec<u32>,
+                pending: &mut Vec<usize>,
+                start: std::ops::Range<usize>,
                 mut placed: usize| {
-        let mut queue: VecDeque<(usize, usize)> = start.iter().copied().collect();
+        let mut queue: VecDeque<usize> = start.collect();
         let mut frontier = Vec::new();
-        while let Some(e) = queue.pop_front() {
-            if old[e.0].prim_count > 0 {
+        while let Some(n) = queue.pop_front() {
+            let m = inner_count(kids, n);
+            if m == 0 {
                 continue;
             }
-            if placed + 2 <= treelet {
-                queue.extend(place_pair(nodes, e));
-                placed += 2;
+            if placed + m <= treelet {
+                queue.extend(place(kids, base, n));
+                placed += m;
             } else {
-                frontier.push(e);
+                frontier.push(n);
             }
         }
         // Depth-first over the frontier: push in reverse so the first is laid out next.
         pending.extend(frontier.into_iter().rev());
     };
-    grow(&mut nodes, &mut pending, &[(0, 0)], 2);
-    while let Some(e) = pending.pop() {
-        let pair = place_pair(&mut nodes, e);
-        grow(&mut nodes, &mut pending, &pair, 2);
+    grow(&mut kids, &mut base, &mut pending, 0..1, 1);
+    while let Some(n) = pending.pop() {
+        let group = place(&mut kids, &mut base, n);
+        let m = group.len();
+        grow(&mut kids, &mut base, &mut pending, group, m);
     }
+
+    // Triangles depth-first, each node's leaves adjacent in slot order; the depth on the way.
+    let mut tri_base = vec![0u32; kids.len()];
+    let mut triangles = Vec::with_capacity(input.len());
+    let mut prim_ids = Vec::with_capacity(input.len());
+    let mut depth = 0u32;
+    let mut stack = vec![(0usize, 1u32)];
+    while let Some((n, d)) = stack.pop() {
+        depth = depth.max(d);
+        tri_base[n] = triangles.len() as u32;
+        for &k in kids[n].iter().filter(|&&k| is_leaf(k)) {
+            let first = old[k].first_index as usize;
+            for &p in &bvh.primitive_indices[first..first + old[k].prim_count as usize] {
+                triangles.push(input[p as usize]);
+                prim_ids.push(p);
+            }
+        }
+        let m = inner_count(&kids, n) as u32;
+        for c in (0..m).rev() {
+            stack.push(((base[n] + c) as usize, d + 1));
+        }
+    }
+
+    let nodes = (0..kids.len())
+        .map(|n| {
+            let boxes: Vec<_> = kids[n]
+                .iter()
+                .map(|&k| (old[k].aabb.min.to_array(), old[k].aabb.max.to_array()))
+                .collect();
+            let mut node = Node::quantized(&boxes);
+            node.child_base = base[n];
+            node.tri_base = tri_base[n];
+            for (i, &k) in kids[n].iter().enumerate() {
+                let count = if is_leaf(k) {
+                    assert!(
+                        old[k].prim_count <= MAX_LEAF,
+                        "leaf of {} triangles",
+                        old[k].prim_count
+                    );
+                    old[k].prim_count
+                } else {
+                    INNER
+                };
+                node.counts |= count << (8 * i);
+            }
+            debug_assert!(kids[n].len() <= WIDTH && EMPTY == 0);
+            node
+        })
+        .collect();
     Laid {
         nodes,
         triangles,
@@ -105,7 +157,7 @@ pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
 
 #[cfg(test)]
 mod tests {
-    use crate::bvh::{Bvh, Node, Preset};
+    use crate::bvh::{Bvh, Child, Preset, WIDTH};
     use crate::scene::Model;
 
     fn soup(n: usize) -> Model {
@@ -123,10 +175,6 @@ mod tests {
             })
             .collect();
         Model::from_triangles(tris)
-    }
-
-    fn contains(outer: &Node, inner: &Node) -> bool {
-        (0..3).all(|a| outer.min[a] <= inner.min[a] && inner.max[a] <= outer.max[a])
     }
 
     /// A soup with groups of identical triangles among its own: 20,000 copies of one, 100 of
@@ -164,57 +212,82 @@ mod tests {
         assert!(bvh.depth <= 16, "depth {}", bvh.depth);
     }
 
-    /// Walks the tree of `model`: every triangle once, every node reached once, pairs even and
-    /// inside their parent, leaf ranges covering the triangle list in order, the depth as said.
+    /// Walks the tree of `model`: every triangle once, every node reached once, children after
+    /// parents, every decoded child box around its triangles, leaf ranges covering the triangle
+    /// list in depth-first order, the depth as said.
     fn check_tree(model: &Model, b: usize) -> Bvh {
-        {
-            let n = model.triangles.len();
-            let bvh = Bvh::build(model, Preset::Fast, b);
-            let mut seen = vec![false; n];
-            for &p in &bvh.prim_ids {
-                assert!(!seen[p as usize], "primitive {p} twice");
-                seen[p as usize] = true;
-            }
-            assert!(seen.iter().all(|&s| s));
-            for (i, t) in bvh.triangles.iter().enumerate() {
-                assert_eq!(*t, model.triangles[bvh.prim_ids[i] as usize]);
-            }
-            // Walk the tree: every node reached once, pairs even and inside their parent, leaf
-            // ranges cover the triangle list in order.
-            let mut reached = vec![0u32; bvh.nodes.len()];
-            let mut next_tri = 0u32;
-            let mut stack = vec![(0usize, 1u32)];
-            let mut depth = 0;
-            while let Some((i, d)) = stack.pop() {
-                depth = depth.max(d);
-                reached[i] += 1;
-                let node = bvh.nodes[i];
-                if node.is_leaf() {
-                    assert_eq!(node.index, next_tri, "in-order triangle ranges");
-                    next_tri += node.count;
-                } else {
-                    let c = node.index as usize;
-                    assert_eq!(c % 2, 0, "pair at odd index");
-                    assert!(c > i, "children after parents");
-                    assert!(contains(&node, &bvh.nodes[c]) && contains(&node, &bvh.nodes[c + 1]));
-                    stack.push((c + 1, d + 1));
-                    stack.push((c, d + 1));
+        let n = model.triangles.len();
+        let bvh = Bvh::build(model, Preset::Fast, b);
+        let mut seen = vec![false; n];
+        for &p in &bvh.prim_ids {
+            assert!(!seen[p as usize], "primitive {p} twice");
+            seen[p as usize] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
+        for (i, t) in bvh.triangles.iter().enumerate() {
+            assert_eq!(*t, model.triangles[bvh.prim_ids[i] as usize]);
+        }
+        let inside = |(lo, hi): ([f32; 3], [f32; 3]), t: &[[f32; 3]; 3]| {
+            t.iter()
+                .all(|v| (0..3).all(|a| lo[a] <= v[a] && v[a] <= hi[a]))
+        };
+        // The triangles below node i, checked against every box on the way down.
+        let mut reached = vec![0u32; bvh.nodes.len()];
+        let mut next_tri = 0u32;
+        let mut depth = 0;
+        // (node, depth, the boxes of its ancestors' slots that lead to it)
+        let mut stack = vec![(0usize, 1u32, vec![bvh.nodes[0].bounds()])];
+        while let Some((i, d, boxes)) = stack.pop() {
+            depth = depth.max(d);
+            reached[i] += 1;
+            let node = bvh.nodes[i];
+            assert_eq!(
+                node.tri_base, next_tri,
+                "node {i}: depth-first triangle ranges"
+            );
+            let mut inner = Vec::new();
+            for s in 0..WIDTH {
+                let mut bs = boxes.clone();
+                bs.push(node.child_box(s));
+                match node.child(s) {
+                    Child::Empty => {}
+                    Child::Inner(c) => {
+                        assert!(c as usize > i, "children after parents");
+                        inner.push((c as usize, d + 1, bs));
+                    }
+                    Child::Leaf { first, count } => {
+                        assert_eq!(first, next_tri, "node {i} slot {s}: leaves adjacent");
+                        for t in first..first + count {
+                            let tri = &bvh.triangles[t as usize];
+                            assert!(bs.iter().all(|&b| inside(b, tri)), "node {i} slot {s}");
+                        }
+                        next_tri += count;
+                    }
                 }
             }
-            assert_eq!(next_tri as usize, n);
-            assert_eq!(depth, bvh.depth);
-            assert_eq!(reached[1], 0, "pad node is never referenced");
-            assert!(reached.iter().enumerate().all(|(i, &r)| r == 1 || i == 1));
-            bvh
+            let want: Vec<usize> = (0..inner.len())
+                .map(|k| node.child_base as usize + k)
+                .collect();
+            assert_eq!(inner.iter().map(|c| c.0).collect::<Vec<_>>(), want);
+            stack.extend(inner.into_iter().rev());
         }
+        // Inner children's boxes are checked through their own leaves' triangles above.
+        assert_eq!(next_tri as usize, n);
+        assert_eq!(depth, bvh.depth);
+        assert!(reached.iter().all(|&r| r == 1));
+        bvh
     }
 
     #[test]
     fn first_block_is_breadth_first() {
         let bvh = Bvh::build(&soup(20000), Preset::Fast, 256);
-        // The root's children are at 2, 3; theirs at 4..8: breadth-first order.
-        assert_eq!(bvh.nodes[0].index, 2);
-        assert_eq!(bvh.nodes[2].index, 4);
-        assert_eq!(bvh.nodes[3].index, 6);
+        // The root's four children are at 1..5, theirs from 5 on: breadth-first order.
+        let n = &bvh.nodes;
+        assert_eq!(n[0].child_base, 1);
+        assert_eq!(n[1].child_base, 5);
+        for i in 1..4 {
+            let inner = (0..WIDTH).filter(|&s| matches!(n[i].child(s), Child::Inner(_)));
+            assert_eq!(n[i + 1].child_base, n[i].child_base + inner.count() as u32);
+        }
     }
 }

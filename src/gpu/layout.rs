@@ -75,11 +75,11 @@ pub struct RayState {
     pub t: f32,
     pub dir: [f32; 3],
     pub hit: u32,
-    pub node: u32,
     pub sp: u32,
     pub status: u32,
     pub steps: u32,
-    /// Content of `node` when already read; `cur_count` is `NONE` when not.
+    /// What the ray visits next: node `cur_index` when `cur_count` is 0, else `cur_count`
+    /// triangles from `cur_index`; `cur_count` `NONE` to pop the stack (a new ray: 0 and 0).
     pub cur_index: u32,
     pub cur_count: u32,
     /// Primitive id and unit geometric normal of the closest hit.
@@ -94,7 +94,7 @@ pub struct RayState {
     pub hit_point: [f32; 3],
     pub hit_error: f32,
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 96);
+const _: () = assert!(std::mem::size_of::<RayState>() == 92);
 
 /// `RayState.status` values.
 pub mod status {

@@ -7,7 +7,7 @@ use super::layout::{MirrorCase, MirrorResult, Params, RayState, ShadeParams};
 use super::tracer::Tracer;
 use crate::error::Result;
 
-/// Words the probe writes: every `Params` member, `params.pad0` nodes of 8 words, `params.pad1`
+/// Words the probe writes: every `Params` member, `params.pad0` nodes of 16 words (unused words as 0), `params.pad1`
 /// triangles of 10, two ray states, `params.mesh_count` meshes and the shading parameters.
 pub fn probe_words(params: &Params) -> u32 {
     let params_words = (size_of::<Params>() / 4) as u32;
@@ -15,7 +15,7 @@ pub fn probe_words(params: &Params) -> u32 {
     let mesh_words = (size_of::<super::layout::MeshInfo>() / 4) as u32;
     let shade_words = (size_of::<ShadeParams>() / 4) as u32;
     params_words
-        + 8 * params.pad0
+        + 16 * params.pad0
         + 10 * params.pad1
         + 2 * ray_words
         + mesh_words * params.mesh_count

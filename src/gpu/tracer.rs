@@ -147,7 +147,7 @@ pub struct Tracer<'g> {
     pub(super) dc: Option<Dc>,
     pub(super) dc_bufs: DcBuffers,
     frame_start: Instant,
-    /// The BVH depth the model declared (the stack holds `min(depth, MAX_STACK)` entries).
+    /// The BVH depth the model declared (the stack holds `min(3 depth, MAX_STACK)` entries).
     pub(super) depth: u32,
     constants: Constants,
     /// Called after each sample pass of a batch with (passes done, passes in the rectangle).
@@ -203,7 +203,11 @@ impl<'g> Tracer<'g> {
         let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
         use wgpu::BufferUsages as U;
         let meshes_buf = init("meshes", bytemuck::cast_slice(&meshes), U::STORAGE);
-        let stack_size = model.depth.clamp(1, MAX_STACK);
+        // A visit pushes at most WIDTH - 1 entries per level.
+        let stack_size = model
+            .depth
+            .saturating_mul(crate::bvh::WIDTH as u32 - 1)
+            .clamp(1, MAX_STACK);
         let mut params = Params {
             step_budget: settings.step_budget,
             stack_size,
@@ -599,8 +603,8 @@ impl<'g> Tracer<'g> {
                     t: if r.tmax == f32::INFINITY { FAR } else { r.tmax },
                     dir: r.dir,
                     hit: NONE,
-                    cur_index: NONE,
-                    cur_count: NONE,
+                    cur_index: 0,
+                    cur_count: 0,
                     prim: NONE,
                     wait_block: NONE,
                     flags: ray_flags,

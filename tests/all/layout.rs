@@ -102,7 +102,6 @@ fn every_member_reads_back_through_the_shader() {
             t: 4.5,
             dir: [5.5, 6.5, 7.5],
             hit: 8,
-            node: 9,
             sp: 10,
             status: 11,
             steps: 12,
@@ -120,7 +119,6 @@ fn every_member_reads_back_through_the_shader() {
             t: 1e30,
             dir: [0.25, 0.125, 0.0625],
             hit: u32::MAX,
-            node: 77,
             sp: 78,
             status: 79,
             steps: 80,
@@ -203,7 +201,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<Params>());
     let w = same_layout!(RayState, "RayState", {
         "ox" => origin, "oy" => origin + 4, "oz" => origin + 8, "t" => t,
-        "dx" => dir, "dy" => dir + 4, "dz" => dir + 8, "hit" => hit, "node" => node,
+        "dx" => dir, "dy" => dir + 4, "dz" => dir + 8, "hit" => hit,
         "sp" => sp, "status" => status, "steps" => steps, "cur_index" => cur_index,
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,

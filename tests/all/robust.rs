@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use dcrt::blocks::{Blocks, Format};
-use dcrt::bvh::{Bvh, Node};
+use dcrt::bvh::{Bvh, INNER, Node};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{GpuModel, MAX_STACK, Meshes, RayHit, Settings, Tracer};
 use dcrt::mirror::offset::offset_ray;
@@ -735,40 +735,43 @@ fn coordinates_around_1e7_match_the_reference() {
 
 // --- A deep, unbalanced BVH ---
 
-/// A caterpillar BVH of `depth` levels built by hand: triangles T_i at z = i (0..depth), each
-/// covering [-1, 1]^2 in x, y; every inner node has the leaf of its farthest triangle and the
-/// inner node of the others as children. A ray along +z from z = -1 enters the inner child first
-/// at every level and pushes the leaf: it needs `depth - 1` stack entries, and hits T_0 at t = 1.
-fn caterpillar(depth: usize) -> (Bvh, Vec<Tri>) {
-    let tris: Vec<Tri> = (0..depth)
+/// A caterpillar BVH of `levels` nodes built by hand over triangles T_i at z = i (0..=levels),
+/// each covering [-1, 1]^2 in x, y: node j holds the leaf of T_{levels-j} and, in its other slot,
+/// node j + 1 over T_0..T_{levels-j-1} (the last node: the leaf of T_0). A ray along +z from
+/// z = -1 enters the inner child first at every level and pushes the leaf: it needs `levels`
+/// stack entries, and hits T_0 at t = 1.
+fn caterpillar(levels: usize) -> (Bvh, Vec<Tri>) {
+    let tris: Vec<Tri> = (0..=levels)
         .map(|i| {
             let z = i as f32;
             [[-4.0, -4.0, z], [4.0, -4.0, z], [0.0, 4.0, z]]
         })
         .collect();
-    let boxed = |lo: usize, hi: usize, index: u32, count: u32| Node {
-        min: [-4.0, -4.0, lo as f32],
-        max: [4.0, 4.0, hi as f32],
-        index,
-        count,
-    };
-    let m = depth - 1;
-    let mut nodes = vec![boxed(0, m, 2, 0), Node::default()];
-    for j in 0..m {
-        // Pair j at 2 + 2j: the leaf of T_{m-j}, then the rest (T_0..T_{m-j-1}).
-        nodes.push(boxed(m - j, m - j, (m - j) as u32, 1));
-        let rest = m - j - 1;
-        nodes.push(if rest == 0 {
-            boxed(0, 0, 0, 1)
-        } else {
-            boxed(0, rest, (4 + 2 * j) as u32, 0)
-        });
-    }
+    let slab = |lo: usize, hi: usize| ([-4.0, -4.0, lo as f32], [4.0, 4.0, hi as f32]);
+    let m = levels;
+    let nodes = (0..m)
+        .map(|j| {
+            let last = j + 1 == m;
+            let rest = m - j - 1;
+            let mut n = Node::quantized(&[slab(m - j, m - j), slab(0, rest)]);
+            if last {
+                // T_0 then T_1: the two leaves, adjacent from triangle 0.
+                n = Node::quantized(&[slab(0, 0), slab(1, 1)]);
+                n.counts = 1 | 1 << 8;
+                n.tri_base = 0;
+            } else {
+                n.counts = 1 | (INNER << 8);
+                n.tri_base = (m - j) as u32;
+                n.child_base = j as u32 + 1;
+            }
+            n
+        })
+        .collect();
     let bvh = Bvh {
         nodes,
         triangles: tris.clone(),
-        prim_ids: (0..depth as u32).collect(),
-        depth: depth as u32,
+        prim_ids: (0..=levels as u32).collect(),
+        depth: levels as u32,
         build_time: Duration::ZERO,
         layout_time: Duration::ZERO,
     };
@@ -803,14 +806,15 @@ fn deep_rays() -> Vec<Ray> {
 }
 
 /// A caterpillar BVH 300 levels deep (deeper than the old fixed 256-entry stack): the stack is
-/// sized to the depth. Pass: every ray hits T_0 at t = 1, as the reference does.
+/// sized by the depth (3 entries a level). Pass: every ray hits T_0 at t = 1, as the reference
+/// does.
 #[test]
 fn deep_unbalanced_bvh_is_traced_with_a_stack_as_deep() {
     let gpu = gpu();
     let (bvh, tris) = caterpillar(300);
     let blocks = Blocks::pack(&bvh, Format::default()).unwrap();
     let mut tracer = deep_tracer(&gpu, &blocks, bvh.depth).unwrap();
-    assert_eq!(tracer.stack_size(), 300);
+    assert_eq!(tracer.stack_size(), 900);
     let rays = deep_rays();
     let hits = tracer.trace_rays(&rays).unwrap();
     let cpu = Reference::new(&tris).closest_hits(&rays);
@@ -821,7 +825,7 @@ fn deep_unbalanced_bvh_is_traced_with_a_stack_as_deep() {
     }
 }
 
-/// Stack overflow is an error, never a wrong hit: the same tree declaring depth 100 (as a
+/// Stack overflow is an error, never a wrong hit: the same tree declaring depth 50 (as a
 /// damaged block file could), and a tree deeper than the largest stack (`MAX_STACK` + 64 levels).
 /// Pass: `trace_rays` and `render` return an error that names the overflow and the depth.
 #[test]
@@ -829,11 +833,11 @@ fn traversal_stack_overflow_is_an_error() {
     let gpu = gpu();
     let (bvh, _) = caterpillar(300);
     let blocks = Blocks::pack(&bvh, Format::default()).unwrap();
-    let mut tracer = deep_tracer(&gpu, &blocks, 100).unwrap();
+    let mut tracer = deep_tracer(&gpu, &blocks, 50).unwrap();
     let err = tracer.trace_rays(&deep_rays()).unwrap_err().to_string();
-    eprintln!("declared depth 100: {err}");
+    eprintln!("declared depth 50: {err}");
     assert!(
-        err.contains("stack overflow") && err.contains("depth 100"),
+        err.contains("stack overflow") && err.contains("depth 50"),
         "{err}"
     );
     let camera = dcrt::scene::Camera {
