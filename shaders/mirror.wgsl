@@ -1,18 +1,20 @@
-// Mirror test (tests only): evaluates the shared functions that have CPU twins (src/mirror/, and
-// dc::cache_line of the input over 4) on the host's inputs, one case per invocation, so the
+// Mirror test (tests only): evaluates the shared functions that have CPU twins (src/mirror/,
+// dc::cache_line of the input over 4, and bvh::Node::child_box) on the host's inputs, one case per invocation, so the
 // tests can compare the twins with the GPU.
 #import params
 #import tiles
 #import sampling
 #import offset
 #import dc
+#import node
 
 // Mirrors gpu::layout::MirrorCase.
 struct MirrorCase {
     p: vec4<f32>,      // offset_ray's point (xyz) and distance (w)
     n: vec4<f32>,      // offset_ray's and cosine_dir's normal (xyz)
     u: vec4<f32>,      // cosine_dir's sample (xy)
-    words: vec4<u32>,  // hash input, sample2's pixel, dim, index
+    words: vec4<u32>,  // hash input, sample2's pixel, dim, index (child_box's slot: index % 4)
+    node: array<vec4<u32>, 4>,  // child_box's node
 }
 
 // Mirrors gpu::layout::MirrorResult.
@@ -21,6 +23,8 @@ struct MirrorResult {
     dir: vec4<f32>,      // cosine_dir(n, u)
     sample: vec4<f32>,   // sample2(pixel, dim, index) in xy
     words: vec4<u32>,    // hash(input), tile_pixel(invocation) in yz, cache_line(input)
+    lo: vec4<f32>,       // child_box(node, node_step(node), slot)
+    hi: vec4<f32>,
 }
 
 @group(1) @binding(0) var<storage, read> mirror_in: array<MirrorCase>;
@@ -39,5 +43,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     r.sample = vec4(sample2(c.words.y, c.words.z, c.words.w), 0.0, 0.0);
     let t = tile_pixel(i);
     r.words = vec4(hash(c.words.x), t.x, t.y, cache_line(c.words.x >> 2u));
+    let n = node_of(c.node[0], c.node[1], c.node[2], c.node[3]);
+    let b = child_box(n, node_step(n), c.words.w % 4u);
+    r.lo = vec4(b.lo, 0.0);
+    r.hi = vec4(b.hi, 0.0);
     mirror_out[i] = r;
 }

@@ -256,8 +256,10 @@ pub struct MirrorCase {
     pub p: [f32; 4],
     pub n: [f32; 4],
     pub u: [f32; 4],
-    /// `hash` input, then `sample2`'s pixel, dimension and index.
+    /// `hash` input, then `sample2`'s pixel, dimension and index (`child_box`'s slot: index % 4).
     pub words: [u32; 4],
+    /// `child_box`'s node (`bvh::Node`'s words).
+    pub node: [u32; 16],
 }
 
 /// `MirrorResult` in `shaders/mirror.wgsl` (tests): what the GPU computed for one case.
@@ -269,4 +271,7 @@ pub struct MirrorResult {
     pub sample: [f32; 4],
     /// `hash`, then `tile_pixel` of the case's index (x, y), then `cache_line` of the hash input over 4.
     pub words: [u32; 4],
+    /// `child_box` of the case's node and slot.
+    pub lo: [f32; 4],
+    pub hi: [f32; 4],
 }

@@ -2,6 +2,7 @@
 //! `mirror` kernel: integer functions bit for bit, float ones within the precision WGSL allows.
 
 use crate::common::*;
+use dcrt::bvh::Node;
 use dcrt::dc::{CacheMap, Ranks, cache_line};
 use dcrt::gpu::layout::{MirrorCase, Params, flags};
 use dcrt::gpu::probe::run_mirror;
@@ -63,6 +64,7 @@ fn cases(n: usize) -> Vec<MirrorCase> {
                     (m.next() % 64) as u32,
                     m.next() as u32,
                 ],
+                node: [0; 16],
             }
         })
         .collect()
@@ -158,6 +160,69 @@ fn offset_ray_matches_the_gpu_bit_for_bit() {
             gpu == plain || gpu == fused,
             "offset_ray({p:?}, {n:?}, {d}), case {i}: GPU {gpu:?}, CPU {plain:?} or {fused:?}"
         );
+    }
+}
+
+/// Quantized child boxes decode on the GPU exactly as `Node::child_box` decodes them, and contain
+/// the exact boxes they were made from: traversal is conservative at every scale. Nodes of four
+/// boxes around centres log-uniform over 1e-8..1e8 with random signs, extents from zero (flat)
+/// to far beyond the centre's magnitude.
+#[test]
+fn child_box_matches_the_gpu_and_contains_the_box() {
+    let gpu = gpu();
+    let mut m = Rng(7);
+    let mut cases = Vec::new();
+    let mut exact = Vec::new();
+    for _ in 0..1024 {
+        let centre = [0; 3].map(|_| m.coord());
+        let boxes: Vec<([f32; 3], [f32; 3])> = (0..4)
+            .map(|_| {
+                let mut lo = [0.0; 3];
+                let mut hi = [0.0; 3];
+                for a in 0..3 {
+                    let scale = centre[a].abs().max(1e-30) * 10f32.powf(6.0 * m.unit() - 5.0);
+                    let c = centre[a] + scale * (m.unit() - 0.5);
+                    let e = if m.next() % 5 == 0 {
+                        0.0
+                    } else {
+                        scale * m.unit()
+                    };
+                    (lo[a], hi[a]) = (c - e, c + e);
+                }
+                (lo, hi)
+            })
+            .collect();
+        let node = Node::quantized(&boxes);
+        let words: &[u32] = bytemuck::cast_slice(std::slice::from_ref(&node));
+        for (s, b) in boxes.iter().enumerate() {
+            cases.push(MirrorCase {
+                words: [0, 0, 0, s as u32],
+                node: words.try_into().unwrap(),
+                ..MirrorCase::default()
+            });
+            exact.push((node, s, *b));
+        }
+    }
+    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    for ((node, s, (lo, hi)), r) in exact.iter().zip(&out) {
+        let (clo, chi) = node.child_box(*s);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(&r.lo[..3]),
+            bits(&clo),
+            "lower bounds, slot {s} of {node:?}"
+        );
+        assert_eq!(
+            bits(&r.hi[..3]),
+            bits(&chi),
+            "upper bounds, slot {s} of {node:?}"
+        );
+        for a in 0..3 {
+            assert!(
+                clo[a] <= lo[a] && hi[a] <= chi[a],
+                "slot {s} axis {a}: {lo:?}..{hi:?} outside {clo:?}..{chi:?}"
+            );
+        }
     }
 }
 
