@@ -182,7 +182,7 @@ fn child_box_matches_the_gpu_and_contains_the_box() {
                 for a in 0..3 {
                     let scale = centre[a].abs().max(1e-30) * 10f32.powf(6.0 * m.unit() - 5.0);
                     let c = centre[a] + scale * (m.unit() - 0.5);
-                    let e = if m.next() % 5 == 0 {
+                    let e = if m.next().is_multiple_of(5) {
                         0.0
                     } else {
                         scale * m.unit()
