@@ -22,9 +22,10 @@
 //! Core sharing: on lavapipe a GPU round is a submission, the kernels on the CPU's cores and a
 //! readback, and with more ranks than cores each round waits longer for a core. The traces'
 //! rounds carry their submission and wait, so the run tells how a round's wait grows with the
-//! render ranks in a round at the same moment: a least-squares line `a + b x c` through every
-//! round's wait against `c` (itself and the other ranks' rounds spanning its middle). The
-//! traced run's mean `c` gives the share of its time a rank spends in rounds, `f = (c - 1) /
+//! render ranks tracing at the same moment: a least-squares line `a + b x c` through every
+//! round's wait against `c` (itself and the other ranks whose tiles span its middle: a rank
+//! tracing a tile wants a core for its rounds, and for its fetches, which poll MPI). The
+//! traced run's mean `c` gives the share of its time a rank spends tracing, `f = (c - 1) /
 //! (R - 1)`; at R' render ranks sharing one machine a round sees `1 + (R' - 1) f` and waits
 //! `(a + b c') / (a + b c)` times as long. Every shared cost (GPU rounds, sending, measured
 //! fetches) stretches by that; re-priced fetches are a network's and do not.
@@ -33,20 +34,22 @@
 //! fewer, smaller tiles, so a pixel takes more fault rounds (rounds a frame at R = 2, 3, 4
 //! render ranks: 90, 157, 260 here, R^1.5 to within 5%, each holding fewer rays). The traces of
 //! one run cannot tell this; with a cache, shared costs per pixel grow as `(R' / R)^w`, `w` the
-//! model's `work_exponent` (`dcrt simulate` takes 1, fitted on this project's 2-core machine to
-//! runs at 4 ranks predicting 5 and 6, and checked on other runs; 0 keeps the work per pixel as
-//! traced). Replicated runs (no cache lookups) do not fault and keep it.
+//! model's `work_exponent`. `dcrt simulate` takes 0.5: fitted on this project's 2-core machine
+//! to 15 runs each at 4, 5 and 6 ranks (shared memory and TCP), predicting 5 and 6 from 4, and
+//! checked on 5 more; 0 keeps the work per pixel as traced. Replicated runs (no cache lookups)
+//! do not fault and keep it.
 //!
 //! What it assumes, and where it breaks: the growth of work per pixel with the render ranks is
 //! one power law, measured on one model, image and cache (1/8); it cannot hold far beyond the
 //! ranks it was measured at (fault rounds per pixel are bounded by the misses), so extrapolating
 //! a cached run to many nodes should use `w = 0`; the fixed part of a tile is the same for every
-//! tile; a round's wait is linear in the concurrent rounds, measured over the concurrencies the
+//! tile; a round's wait is linear in the ranks tracing at once, measured over the counts the
 //! traced run had (a run of 2 render ranks sees 1 and 2; more is extrapolation); rounds are
 //! where ranks compete, shading and host work between rounds stretch as rounds do; requests and
 //! grants cost nothing; the display is never the bottleneck beyond its measured copy wait; the
-//! machine has no other load than the run (timings on a loaded machine vary by 2x between runs,
-//! and the prediction with them).
+//! machine has no other load than the run (here it had: single runs of one configuration varied
+//! by 2x, and a prediction from one 4-rank run missed the 6-rank run next to it by up to 60%;
+//! the medians of 5 runs came within 25%).
 
 use super::read::{RankFrame, Tile, Traces};
 use crate::cluster::Roles;
@@ -73,15 +76,16 @@ pub struct Model {
     pub work_exponent: f64,
 }
 
-/// How a round's wait grows with concurrent rounds, fitted from a run's rounds (module docs).
+/// How a round's wait grows with the ranks tracing at once, fitted from a run's rounds and
+/// tiles (module docs).
 #[derive(Clone, Copy, Debug, Serialize, PartialEq)]
 pub struct Sharing {
-    /// ms of a round alone, and per other rank in a round at the same moment.
+    /// ms of a round's wait: `alone_ms + per_rank_ms x c` at `c` ranks tracing (itself included).
     pub alone_ms: f64,
     pub per_rank_ms: f64,
-    /// The mean number of ranks in a round during a round of the traced run.
+    /// The mean number of ranks tracing during a round of the traced run.
     pub concurrency: f64,
-    /// The share of a render rank's time spent in rounds, `(concurrency - 1) / (R - 1)`.
+    /// The share of a render rank's time spent tracing, `(concurrency - 1) / (R - 1)`.
     pub busy: f64,
     /// Rounds the fit used.
     pub rounds: usize,
@@ -101,11 +105,22 @@ impl Sharing {
         if by_rank.is_empty() {
             return None;
         }
+        // What the others were doing: tracing a tile (its rounds, fetches, shading), each a
+        // rank that wants a core.
+        let tiles: Vec<(u32, f64, f64)> = t
+            .files
+            .iter()
+            .flat_map(|f| {
+                f.tiles
+                    .iter()
+                    .map(move |x| (f.frame.rank, x.start_ms, x.trace_ms))
+            })
+            .collect();
         let points: Vec<(f64, f64)> = by_rank
             .iter()
             .map(|&(rank, s, w)| {
                 let mid = s + w / 2.0;
-                let mut others: Vec<u32> = by_rank
+                let mut others: Vec<u32> = tiles
                     .iter()
                     .filter(|o| o.0 != rank && o.1 <= mid && mid <= o.1 + o.2)
                     .map(|o| o.0)
@@ -178,7 +193,7 @@ pub struct Prediction {
     /// The mean frame interval after the first frame (the first frame alone if there is one).
     pub mean_frame_ms: f64,
     pub measured_mean_frame_ms: Option<f64>,
-    /// The rounds' waits against concurrent rounds in the traced run (`None`: the traces have
+    /// The rounds' waits against the ranks tracing at once in the traced run (`None`: the traces have
     /// no round times, and nothing stretches for sharing).
     pub sharing: Option<Sharing>,
     /// What shared costs are multiplied by: core sharing, and the cache's work per pixel.
@@ -494,12 +509,13 @@ mod tests {
     }
 
     /// A 4-rank run (render ranks 2 and 3) of a 64x64 image in 16x16 tiles of 2 ms each, taken
-    /// in turn. With `rounds`, frame 0 has rounds whose waits are 1 + 0.5 c ms at c ranks in a
-    /// round at once: one alone at each rank, one at both at once.
+    /// in turn. With `rounds`, frame 0 has rounds whose waits are 1 + 0.5 c ms at c ranks
+    /// tracing at once: one alone at each rank, one at both at once.
     fn traces(rounds: bool, lookups: u64) -> Traces {
         let mut files = Vec::new();
         for frame in 0..FRAMES {
             for rank in [2, 3] {
+                // Rank 2 traces from 0 ms, rank 3 from 10 ms, a tile every 10 ms.
                 let tiles = (0..16)
                     .filter(|i| i % 2 == rank % 2)
                     .map(|i| Tile {
@@ -507,13 +523,14 @@ mod tests {
                         y: (i / 4) * 16,
                         w: 16,
                         h: 16,
-                        start_ms: 0.0,
+                        start_ms: f64::from(10 * (rank - 2) + 10 * (i / 2)),
                         trace_ms: 2.0,
                         send_ms: 0.0,
                     })
                     .collect();
                 let r = if rounds && frame == 0 {
-                    let alone = if rank == 2 { 0.0 } else { 20.0 };
+                    // While the other rank traces nothing, and at 10 ms while both do.
+                    let alone = if rank == 2 { 0.0 } else { 85.0 };
                     vec![round(alone, 1.5), round(10.0, 2.0)]
                 } else {
                     Vec::new()
@@ -549,7 +566,7 @@ mod tests {
         assert!(close(s.alone_ms, 1.0) && close(s.per_rank_ms, 0.5), "{s:?}");
         assert!(close(s.concurrency, 1.5) && close(s.busy, 0.5), "{s:?}");
         assert_eq!(s.rounds, 4);
-        // 4 render ranks: 1 + 3 x 0.5 ranks in a round, 1 + 0.5 x 2.5 ms against 1.75.
+        // 4 render ranks: 1 + 3 x 0.5 ranks tracing, 1 + 0.5 x 2.5 ms against 1.75.
         assert!(close(s.stretch(4), 2.25 / 1.75));
         assert!(close(s.stretch(2), 1.0));
         assert!(close(s.stretch(1), 1.5 / 1.75));

@@ -29,8 +29,8 @@ pub struct SimulateArgs {
     #[arg(long)]
     ranks_per_node: Option<u32>,
     /// With a distributed cache, shared costs per pixel grow as (render ranks / traced)^W
-    /// (1 fits this project's 2-core machine at 4 to 6 ranks; 0: the work per pixel as traced).
-    #[arg(long, default_value_t = 1.0)]
+    /// (0.5 fits this project's 2-core machine at 4 to 6 ranks; 0: the work per pixel as traced).
+    #[arg(long, default_value_t = 0.5)]
     work_exponent: f64,
     /// One JSON object on stdout instead of the table.
     #[arg(long)]
@@ -64,7 +64,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     );
     if let Some(s) = &p.sharing {
         println!(
-            "a round waits {:.2} ms + {:.2} ms per rank in a round with it ({} rounds; {:.2} ranks in rounds at once, busy {:.2})",
+            "a round waits {:.2} ms + {:.2} ms per rank tracing ({} rounds; {:.2} ranks tracing at once, busy {:.2})",
             s.alone_ms, s.per_rank_ms, s.rounds, s.concurrency, s.busy
         );
     }
