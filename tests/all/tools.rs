@@ -434,3 +434,135 @@ fn cluster_simulate_predicts_its_own_run() {
     );
     assert!(shared["measured_mean_frame_ms"].is_null());
 }
+
+/// `bench --figures` on a tiny configuration: traced mpirun jobs (3 ranks, replicated and a 1/2
+/// cache, both models), their replays to 60 nodes, memory per node and one display job. The
+/// JSON holds one point per configuration and source, every rate finite and positive; the
+/// three PNGs decode at their sizes.
+#[test]
+fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
+    let d = TempDir::new("tools-figures");
+    let out = d.path("figs");
+    let r = Command::new("timeout")
+        .args(["-k", "5", "120"])
+        .arg(env!("CARGO_BIN_EXE_dcrt"))
+        .args(["bench", "--figures"])
+        .arg(&out)
+        .args(["--triangles", "2000", "--width", "32", "--height", "32"])
+        .args(["--frames", "3", "--ranks", "3", "--caches", "1/2"])
+        .args([
+            "--copy-threads",
+            "1",
+            "--display-frames",
+            "4",
+            "--display-ranks",
+            "3",
+        ])
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .output()
+        .expect("mpirun (apt install openmpi-bin)");
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let v: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("figures.json")).unwrap()).unwrap();
+    let six = v["figure6"].as_array().unwrap();
+    let count = |model: &str, cache: &str, source: &str| {
+        six.iter()
+            .filter(|p| p["model"] == model && p["cache"] == cache && p["source"] == source)
+            .count()
+    };
+    for model in ["rm", "assembly"] {
+        for cache in ["replicated", "1/2"] {
+            assert_eq!(count(model, cache, "run"), 1, "{model} {cache}");
+            assert_eq!(count(model, cache, "simulated"), 6, "{model} {cache}");
+        }
+        assert_eq!(count(model, "replicated", "chapter"), 1);
+        assert_eq!(count(model, "1/8", "chapter"), 1);
+    }
+    for p in six {
+        let fps = p["fps"].as_f64().unwrap();
+        assert!(fps.is_finite() && fps > 0.0, "{p}");
+    }
+    // A run at 3 ranks is 1 render rank + the display's node; its replay at the same ranks is
+    // the simulator's own-run prediction.
+    for p in six.iter().filter(|p| p["source"] == "run") {
+        assert_eq!(
+            (p["nodes"].as_u64(), p["ranks"].as_u64()),
+            (Some(2), Some(3))
+        );
+        let own = six
+            .iter()
+            .find(|q| {
+                q["source"] == "simulated"
+                    && q["model"] == p["model"]
+                    && q["cache"] == p["cache"]
+                    && q["nodes"] == 2
+            })
+            .unwrap();
+        assert!(p["predicted_fps"].as_f64().unwrap() > 0.0, "{p}");
+        assert!(own["fps"].as_f64().unwrap() > 0.0, "{own}");
+    }
+    // With a render rank per node, 59 render nodes are faster than 1.
+    for model in ["rm", "assembly"] {
+        let at = |nodes: u64| {
+            six.iter()
+                .find(|p| {
+                    p["source"] == "simulated"
+                        && p["model"] == model
+                        && p["cache"] == "replicated"
+                        && p["nodes"] == nodes
+                })
+                .unwrap()["fps"]
+                .as_f64()
+                .unwrap()
+        };
+        assert!(
+            at(60) > at(2),
+            "{model}: {} fps at 60 nodes, {} at 2",
+            at(60),
+            at(2)
+        );
+    }
+    // Memory per node: the whole model replicated; with the cache, an owner's share and the
+    // cache's 1/2, falling with the nodes; the runs' ranks allocated what the model says.
+    let seven = v["figure7"].as_array().unwrap();
+    let mem = |cache: &str, source: &str, nodes: u64| {
+        seven
+            .iter()
+            .find(|p| p["cache"] == cache && p["source"] == source && p["nodes"] == nodes)
+            .unwrap_or_else(|| panic!("{cache} {source} {nodes}"))["fraction"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_eq!(
+        seven.iter().filter(|p| p["source"] == "model").count(),
+        2 * 59
+    );
+    assert_eq!(mem("replicated", "model", 60), 1.0);
+    assert_eq!(
+        mem("1/2", "model", 2),
+        1.0,
+        "one render rank owns all, no cache"
+    );
+    assert!(
+        mem("1/2", "model", 3) >= 1.0,
+        "half owned, half cached, and the root"
+    );
+    let far = mem("1/2", "model", 60);
+    assert!((0.5..mem("1/2", "model", 3)).contains(&far), "{far}");
+    assert_eq!(mem("1/2", "run", 2), mem("1/2", "model", 2));
+    let eight = v["figure8"].as_array().unwrap();
+    let runs: Vec<&Value> = eight.iter().filter(|p| p["source"] == "run").collect();
+    assert_eq!(runs.len(), 1);
+    assert_eq!(runs[0]["copy_threads"], 1);
+    assert!(runs[0]["fps"].as_f64().unwrap() > 0.0);
+    assert_eq!(eight.iter().filter(|p| p["source"] == "chapter").count(), 7);
+    for (name, w) in [
+        ("figure6.png", 1200),
+        ("figure7.png", 700),
+        ("figure8.png", 700),
+    ] {
+        let img = image::open(out.join(name)).unwrap();
+        assert_eq!((img.width(), img.height()), (w, 520), "{name}");
+    }
+}
