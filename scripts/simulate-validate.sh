@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Traced mpirun runs at several rank counts and transports, for checking `dcrt simulate`:
-# writes OUT/<transport>-k<K>-r<run>/ (a trace directory per run). Then run
-# `dcrt simulate` on each (own K, and from the smallest K to the others).
+# writes OUT/<transport>-k<K>-r<run>/ (a trace directory per run); scripts/simulate-table.py
+# then tabulates `dcrt simulate` on them (own K, and from K = 4 to the others).
 # Usage: scripts/simulate-validate.sh DCRT OUT [RUNS] [KS]
 set -euo pipefail
 dcrt=${1:?usage: simulate-validate.sh DCRT OUT [RUNS] [KS]}
