@@ -449,7 +449,9 @@ fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
         .args(["bench", "--figures"])
         .arg(&out)
         .args(["--triangles", "2000", "--width", "32", "--height", "32"])
-        .args(["--frames", "3", "--ranks", "3", "--caches", "1/2"])
+        .args([
+            "--frames", "3", "--ranks", "3", "--caches", "1/2", "--runs", "1",
+        ])
         .args([
             "--copy-threads",
             "1",
@@ -500,6 +502,8 @@ fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
             })
             .unwrap();
         assert!(p["predicted_fps"].as_f64().unwrap() > 0.0, "{p}");
+        assert_eq!(p["runs"].as_array().unwrap().len(), 1, "{p}");
+        assert_eq!(p["runs"][0], p["fps"]);
         assert!(own["fps"].as_f64().unwrap() > 0.0, "{own}");
     }
     // With a render rank per node, 59 render nodes are faster than 1.
