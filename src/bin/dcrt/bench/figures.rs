@@ -1,7 +1,8 @@
 //! `dcrt bench --figures DIR`: the chapter's Figures 6-8 redone (docs/ARCHITECTURE.md, Traces).
 //! Traced mpirun jobs at the given rank counts, replicated and with each cache, for the rm and
 //! the occluded assembly model; `traces::simulate` replays each configuration's traces of the
-//! largest rank count at 2..60 nodes of one render rank each on the chapter's network; memory
+//! largest rank count at 2..60 nodes of one render rank each on the chapter's network (its
+//! bandwidth, and the median fetch time of a fault round here as each round's latency); memory
 //! per node from the ownership and cache sizes the ranks allocate; the display benchmark per
 //! copy-thread count. Writes `figure6.png`, `figure7.png`, `figure8.png` and `figures.json`
 //! (every point drawn, with its source: `run`, `simulated`, `model` or `chapter`).
@@ -219,7 +220,9 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
             let Some((k, t)) = largest else { continue };
             for nodes in NODES {
                 let ranks = nodes + 1;
-                let p = simulate(&t, &model(ranks, Some(CHAPTER_BANDWIDTH), Some(1), 0.0))?;
+                let mut m = model(ranks, Some(CHAPTER_BANDWIDTH), Some(1), 0.0);
+                m.latency = round_latency(&t);
+                let p = simulate(&t, &m)?;
                 // The display cannot take pixels faster than the network brings them.
                 let ceiling = CHAPTER_BANDWIDTH / (PIXEL_BYTES * f64::from(width * height));
                 figs.figure6.push(RatePoint {
@@ -339,6 +342,19 @@ fn model(ranks: u32, bandwidth: Option<f64>, per_node: Option<u32>, w: f64) -> M
         ranks_per_node: per_node,
         work_exponent: w,
     }
+}
+
+/// The median fetch time of the traced fault rounds that fetched, in seconds: MPI's cost per
+/// round as measured here, which a faster wire does not remove (`None` without such rounds).
+fn round_latency(t: &Traces) -> Option<f64> {
+    let mut us: Vec<f64> = t
+        .files
+        .iter()
+        .flat_map(|f| &f.rounds)
+        .filter(|r| r.fetched_blocks > 0)
+        .map(|r| r.fetch_us)
+        .collect();
+    (!us.is_empty()).then(|| super::median(&mut us) * 1e-6)
 }
 
 fn memory_point(
@@ -475,6 +491,17 @@ fn save(
         .with_context(|| format!("{}: cannot write", path.display()))
 }
 
+/// A log axis's tick without float noise: two significant digits.
+fn tick(v: f64) -> String {
+    if v >= 10.0 {
+        format!("{v:.0}")
+    } else if v >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
 fn plot_error<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing a figure: {e:?}")
 }
@@ -523,6 +550,7 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
                 .x_desc("nodes (one for display + balancer)")
                 .y_desc("frames per second")
                 .label_style((font, 12))
+                .y_label_formatter(&|v| tick(*v))
                 .draw()
                 .map_err(plot_error)?;
             for (i, cache) in drawn_caches(f, f.figure6.iter().map(|p| &p.cache))
@@ -565,7 +593,7 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
         }
         root.draw(&Text::new(
             format!(
-                "lines: simulated on {:.0} MB/s, a render rank per node; dots: runs here; triangles: the chapter (1920x1080)",
+                "lines: simulated on {:.0} MB/s + a fault round's median fetch here, a render rank per node; dots: runs here (median of --runs); triangles: the chapter (1920x1080)",
                 f.network_mb_s
             ),
             (12, H as i32 - 16),
@@ -601,6 +629,7 @@ fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
             .x_desc("nodes")
             .y_desc("blocks + cache per node / model")
             .label_style((font, 12))
+            .y_label_formatter(&|v| tick(*v))
             .draw()
             .map_err(plot_error)?;
         for (i, cache) in drawn_caches(f, f.figure7.iter().map(|p| &p.cache))
@@ -675,6 +704,7 @@ fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
             .x_desc("copy threads")
             .y_desc("frames per second")
             .label_style((font, 12))
+            .y_label_formatter(&|v| tick(*v))
             .draw()
             .map_err(plot_error)?;
         let series = [
