@@ -74,6 +74,9 @@ pub struct Model {
     pub ranks_per_node: Option<u32>,
     /// How shared costs per pixel grow with the render ranks in a cached run (module docs).
     pub work_exponent: f64,
+    /// The sharing fit for traces without round times to fit (a replicated run never faults,
+    /// so it records no rounds): e.g. a cached run's of the same model and ranks.
+    pub sharing: Option<Sharing>,
 }
 
 /// How a round's wait grows with the ranks tracing at once, fitted from a run's rounds and
@@ -354,7 +357,7 @@ pub fn simulate(t: &Traces, m: &Model) -> Result<Prediction> {
         ));
     }
     let traced_render = Roles::new(traced)?.render_ranks();
-    let sharing = Sharing::fit(t, traced_render);
+    let sharing = Sharing::fit(t, traced_render).or(m.sharing);
     let sharing_stretch = sharing.map_or(1.0, |s| {
         s.stretch(m.ranks_per_node.map_or(render, |n| n.min(render)))
     });
@@ -553,6 +556,7 @@ mod tests {
             min_tile: 16,
             ranks_per_node,
             work_exponent,
+            sharing: None,
         }
     }
 
@@ -595,6 +599,11 @@ mod tests {
             shared.mean_frame_ms,
             base.mean_frame_ms * 2.25 / 1.75
         ));
+        // Traces without rounds take a given fit as if they had its rounds.
+        let mut lent = model(6, 1.0, None);
+        lent.sharing = Sharing::fit(&traces(true, 0), 2);
+        let borrowed = simulate(&traces(false, 0), &lent).unwrap();
+        assert!(close(borrowed.mean_frame_ms, shared.mean_frame_ms));
         // One rank per node: rounds wait as alone.
         let nodes = simulate(&traces(true, 0), &model(6, 1.0, Some(1))).unwrap();
         assert!(close(nodes.mean_frame_ms, base.mean_frame_ms * 1.5 / 1.75));

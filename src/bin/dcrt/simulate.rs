@@ -52,6 +52,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
             min_tile: a.min_tile,
             ranks_per_node: a.ranks_per_node,
             work_exponent: a.work_exponent,
+            sharing: None,
         },
     )?;
     if a.json {
