@@ -93,7 +93,14 @@ fn bench_refuses_options_it_cannot_measure() {
             "--frames must be at least 2",
         ),
         (
-            &["--figures", "figs-never-written", "--caches", "1/0"],
+            &[
+                "--figures",
+                "figs-never-written",
+                "--ranks",
+                "3",
+                "--caches",
+                "1/0",
+            ],
             "--caches: 1/0",
         ),
     ] {
