@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, and cargo-nextest. Installs only what is missing; safe to run again.
+# crate), Open MPI, DejaVu fonts (the text of `bench --figures`), and cargo-nextest. Installs only
+# what is missing; safe to run again.
 set -euo pipefail
 
-packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config)
+packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

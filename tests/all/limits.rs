@@ -68,7 +68,8 @@ fn a_generator_too_large_for_memory_is_refused_with_its_size() {
 
 /// The bench's option combinations that cannot be measured are refused, naming the option,
 /// before any work: a reference that cannot be split into whole halves, a peer with the wrong
-/// benchmark, a soak too short for a slope.
+/// benchmark, a soak too short for a slope, figures without a render rank, a timed frame or a
+/// valid cache.
 #[test]
 fn bench_refuses_options_it_cannot_measure() {
     for (args, expect) in [
@@ -83,6 +84,25 @@ fn bench_refuses_options_it_cannot_measure() {
             "--peer embree measures primary rays",
         ),
         (&["--soak", "5"], "--soak needs at least 20 frames, got 5"),
+        (
+            &["--figures", "figs-never-written", "--ranks", "2"],
+            "--ranks counts MPI ranks, at least 3",
+        ),
+        (
+            &["--figures", "figs-never-written", "--frames", "1"],
+            "--frames must be at least 2",
+        ),
+        (
+            &[
+                "--figures",
+                "figs-never-written",
+                "--ranks",
+                "3",
+                "--caches",
+                "1/0",
+            ],
+            "--caches: 1/0",
+        ),
     ] {
         let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];
         all.extend(args.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));

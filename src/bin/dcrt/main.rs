@@ -349,6 +349,13 @@ struct BenchArgs {
     /// Only the display benchmark.
     #[arg(long)]
     display_only: bool,
+    /// The chapter's Figures 6-8 into this directory: traced mpirun jobs at --ranks of the rm and
+    /// assembly models, replicated and with each of --caches, each --runs times (the median
+    /// drawn), simulated to 60 nodes on its 1868 MB/s network, memory per node, and the display benchmark per --copy-threads
+    /// (figure6.png, figure7.png, figure8.png, figures.json). --width/--height default to
+    /// 128x96 and --triangles to 50000 here.
+    #[arg(long)]
+    figures: Option<PathBuf>,
     #[command(flatten)]
     gpu: GpuArgs,
 }

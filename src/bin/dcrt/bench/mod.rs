@@ -4,6 +4,7 @@
 
 mod cluster;
 mod dc;
+mod figures;
 pub mod shading;
 mod soak;
 mod trace;
@@ -84,6 +85,9 @@ pub fn bench(a: BenchArgs) -> Result<()> {
             peer: a.peer,
         };
         return shading::run(&gpu, &args);
+    }
+    if let Some(dir) = &a.figures {
+        return figures::run(&a, dir);
     }
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,

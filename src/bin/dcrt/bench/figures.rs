@@ -1,0 +1,775 @@
+//! `dcrt bench --figures DIR`: the chapter's Figures 6-8 redone (docs/ARCHITECTURE.md, Traces).
+//! Traced mpirun jobs at the given rank counts, replicated and with each cache, for the rm and
+//! the occluded assembly model; `traces::simulate` replays each configuration's traces of the
+//! largest rank count at 2..60 nodes of one render rank each on the chapter's network (its
+//! bandwidth, and the median fetch time of a fault round here as each round's latency); memory
+//! per node from the ownership and cache sizes the ranks allocate; the display benchmark per
+//! copy-thread count. Writes `figure6.png`, `figure7.png`, `figure8.png` and `figures.json`
+//! (every point drawn, with its source: `run`, `simulated`, `model` or `chapter`).
+
+use super::MODELS;
+use crate::BenchArgs;
+use anyhow::{Context, Result, anyhow, bail};
+use dcrt::blocks::Format;
+use dcrt::cluster::Roles;
+use dcrt::cluster::bench::{Plan, Transport};
+use dcrt::dc::{CacheSize, Ranks};
+use dcrt::render::{Prepared, mib};
+use dcrt::scene::Scene;
+use dcrt::traces::Traces;
+use dcrt::traces::plot::PALETTE;
+use dcrt::traces::simulate::{Model, Sharing, simulate};
+use plotters::prelude::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The chapter's interconnect: 4x DDR InfiniBand, 1868 MB/s measured by `ib_read_bw`.
+const CHAPTER_BANDWIDTH: f64 = 1868e6;
+/// Nodes of the simulated points (one runs the display and the balancer, as in the chapter).
+const NODES: [u32; 6] = [2, 4, 8, 16, 32, 60];
+/// Bytes a pixel of ours takes to the display (RGB8; the chapter's also carry a 4-byte place).
+const PIXEL_BYTES: f64 = 3.0;
+/// The tiles of the runs and of their replays: small images need small tiles to share out.
+const TILE: u32 = 32;
+const MIN_TILE: u32 = 8;
+
+/// Where the chapter gives numbers (its section 5 text and captions of Figures 4-8): frame rates
+/// at 60 nodes (RM and the Boeing 777, the occluded model our assembly stands in for; its DC
+/// figures are for 1/8 of the data per node), memory per node, and the display's frame rate
+/// by copy threads (55 fps with one, up to 1.6x with two, 2.3x with three, no more after).
+const CHAPTER_FPS: [(&str, &str, u32, f64); 4] = [
+    ("rm", "replicated", 60, 101.0),
+    ("rm", "1/8", 60, 16.0),
+    ("assembly", "replicated", 60, 96.0),
+    ("assembly", "1/8", 60, 77.0),
+];
+/// RM: 21,326 MB replicated (all of it on one render node), 2,666 MB per node with the DC.
+const CHAPTER_MEMORY: [(&str, u32, f64); 3] = [
+    ("replicated", 2, 21326.0),
+    ("replicated", 60, 21326.0),
+    ("1/8", 60, 2666.0),
+];
+const CHAPTER_RM_MB: f64 = 21326.0;
+const CHAPTER_DISPLAY: [(u32, f64); 7] = [
+    (1, 55.0),
+    (2, 88.0),
+    (3, 127.0),
+    (4, 127.0),
+    (5, 127.0),
+    (6, 127.0),
+    (7, 127.0),
+];
+
+#[derive(Serialize)]
+struct RatePoint {
+    model: String,
+    cache: String,
+    source: &'static str,
+    nodes: u32,
+    /// MPI ranks (`mpirun -n`); 0 for the chapter's.
+    ranks: u32,
+    fps: f64,
+    /// For a run: `dcrt simulate`'s prediction of its own frame rate (of the median run).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    predicted_fps: Option<f64>,
+    /// For a run: the frame rate of each of the `--runs` jobs, ascending; `fps` is the median.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    runs: Vec<f64>,
+}
+
+#[derive(Serialize)]
+struct MemoryPoint {
+    cache: String,
+    source: &'static str,
+    nodes: u32,
+    mib: f64,
+    /// Of the replicated model.
+    fraction: f64,
+}
+
+#[derive(Serialize)]
+struct DisplayPoint {
+    copy_threads: u32,
+    source: &'static str,
+    fps: f64,
+    /// The link's limit: the job's measured MPI bandwidth (runs), the chapter's (chapter).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    ceiling_fps: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct Figures {
+    width: u32,
+    height: u32,
+    triangles: u64,
+    frames: u32,
+    ranks: Vec<u32>,
+    caches: Vec<String>,
+    network_mb_s: f64,
+    model_mib: Vec<(String, f64)>,
+    figure6: Vec<RatePoint>,
+    figure7: Vec<MemoryPoint>,
+    figure8: Vec<DisplayPoint>,
+}
+
+pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
+    // The bench's defaults are for one big frame; here they would take hours of mpirun jobs.
+    let width = if a.width == 1024 { 128 } else { a.width };
+    let height = if a.height == 1024 { 96 } else { a.height };
+    let triangles = if a.triangles == 1_000_000 {
+        50_000
+    } else {
+        a.triangles
+    };
+    if a.frames < 2 || a.display_frames < 4 {
+        bail!("--frames must be at least 2 and --display-frames at least 4: frame 0 is not timed");
+    }
+    if a.ranks.is_empty() || a.ranks.iter().any(|&k| k < 3) || a.display_ranks < 2 {
+        bail!(
+            "--figures: --ranks counts MPI ranks, at least 3 each (a display, a balancer, render ranks); --display-ranks at least 2"
+        );
+    }
+    let mut caches = vec!["replicated".to_string()];
+    for c in &a.caches {
+        CacheSize::parse(c).with_context(|| format!("--caches: {c}"))?;
+        caches.push(c.clone());
+    }
+    let format = Format::new(a.gpu.block_size)?;
+    let font = load_font()?;
+    let runs = out.join("runs");
+    std::fs::create_dir_all(&runs).with_context(|| format!("{}: cannot create", runs.display()))?;
+    let exe = std::env::current_exe().context("the path of this dcrt")?;
+    let max_k = a.ranks.iter().copied().max().unwrap_or(3);
+    let mut figs = Figures {
+        width,
+        height,
+        triangles,
+        frames: a.frames,
+        ranks: a.ranks.clone(),
+        caches: caches.clone(),
+        network_mb_s: CHAPTER_BANDWIDTH / 1e6,
+        model_mib: Vec::new(),
+        figure6: Vec::new(),
+        figure7: Vec::new(),
+        figure8: Vec::new(),
+    };
+    let mut display_model = None;
+    for g in MODELS {
+        let name = g.name().to_string();
+        let scene = Scene::generated(g, triangles, width, height);
+        let p = Prepared::new(&scene, a.gpu.bvh_preset, format)?;
+        let camera = scene.camera_or_default(&p.model);
+        let dcb = runs.join(format!("{name}.dcb"));
+        dcrt::blocks::file::write(&dcb, &p.blocks, &p.meta(&scene, camera, width, height))?;
+        let blocks = p.blocks.count();
+        figs.model_mib.push((name.clone(), mib(p.blocks.bytes())));
+        eprintln!(
+            "{name}: {} triangles, {:.1} MiB of blocks",
+            p.model.triangles.len(),
+            mib(p.blocks.bytes())
+        );
+        let mut traced = Vec::new();
+        for cache in &caches {
+            let mut largest = None;
+            for &k in &a.ranks {
+                // `--runs` jobs of each; the run of the median frame rate stands for them.
+                let mut done = Vec::new();
+                for run in 0..a.runs {
+                    let tag = format!("{name}-k{k}-{}-r{run}", cache.replace('/', "of"));
+                    let traces = runs.join(&tag);
+                    let _ = std::fs::remove_dir_all(&traces);
+                    let png = runs.join(format!("{tag}.png"));
+                    job(&exe, k, &dcb, cache, &traces, &png, a)?;
+                    let t = Traces::read(&traces)?;
+                    let own = simulate(&t, &model(k, None, None, 0.0))?;
+                    let measured = own.measured_mean_frame_ms.ok_or_else(|| {
+                        anyhow!("{tag}: the display's traces have no frame times")
+                    })?;
+                    done.push((1000.0 / measured, 1000.0 / own.mean_frame_ms, t));
+                }
+                done.sort_by(|x, y| x.0.total_cmp(&y.0));
+                let all: Vec<f64> = done.iter().map(|d| d.0).collect();
+                let (fps, predicted, t) = done.swap_remove(done.len() / 2);
+                let render = Roles::new(k)?.render_ranks();
+                figs.figure6.push(RatePoint {
+                    model: name.clone(),
+                    cache: cache.clone(),
+                    source: "run",
+                    nodes: render + 1,
+                    ranks: k,
+                    fps,
+                    predicted_fps: Some(predicted),
+                    runs: all,
+                });
+                if name == "rm" {
+                    let lines = t
+                        .get(t.frames()[0], Roles::new(k)?.render_rank(0))
+                        .map_or(0, |f| f.frame.cache_lines);
+                    let rows = if cache == "replicated" {
+                        blocks
+                    } else {
+                        Ranks::new(render, 0)?.resident_rows(blocks) + lines
+                    };
+                    figs.figure7
+                        .push(memory_point(cache, "run", render + 1, rows, blocks, format));
+                }
+                if k == max_k {
+                    largest = Some((k, t));
+                }
+            }
+            if let Some(l) = largest {
+                traced.push((cache.clone(), l));
+            }
+        }
+        // A replicated run never faults, so it has no rounds to fit core sharing on: it takes
+        // the fit of the cached runs' at the same ranks with the median stretch to one rank.
+        let fits: Vec<Sharing> = {
+            let mut v: Vec<(f64, Sharing)> = traced
+                .iter()
+                .filter_map(|(_, (k, t))| {
+                    let render = Roles::new(*k).ok()?.render_ranks();
+                    Sharing::fit(t, render).map(|s| (s.stretch(1), s))
+                })
+                .collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            v.into_iter().map(|x| x.1).collect()
+        };
+        let borrowed = fits.get(fits.len() / 2).copied();
+        for (cache, (k, t)) in &traced {
+            let (cache, k) = (cache.clone(), *k);
+            for nodes in NODES {
+                let ranks = nodes + 1;
+                let mut m = model(ranks, Some(CHAPTER_BANDWIDTH), Some(1), 0.0);
+                m.latency = round_latency(t);
+                m.sharing = borrowed;
+                let p = simulate(t, &m)?;
+                // The display cannot take pixels faster than the network brings them.
+                let ceiling = CHAPTER_BANDWIDTH / (PIXEL_BYTES * f64::from(width * height));
+                figs.figure6.push(RatePoint {
+                    model: name.clone(),
+                    cache: cache.clone(),
+                    source: "simulated",
+                    nodes,
+                    ranks,
+                    fps: (1000.0 / p.mean_frame_ms).min(ceiling),
+                    predicted_fps: None,
+                    runs: Vec::new(),
+                });
+            }
+            eprintln!(
+                "{name} {cache}: runs at {:?} ranks, simulated from {k}",
+                a.ranks
+            );
+        }
+        if name == "rm" {
+            for cache in &caches {
+                for nodes in 2..=60u32 {
+                    let render = nodes - 1;
+                    // A single render rank owns every block and runs without a cache.
+                    let rows = match CacheSize::parse(cache) {
+                        Ok(c) if cache != "replicated" && render > 1 => {
+                            Ranks::new(render, 0)?.resident_rows(blocks)
+                                + c.lines(blocks, format.block_bytes)
+                        }
+                        _ => blocks,
+                    };
+                    figs.figure7
+                        .push(memory_point(cache, "model", nodes, rows, blocks, format));
+                }
+            }
+        }
+        display_model.get_or_insert(dcb);
+    }
+    for &(model, cache, nodes, fps) in &CHAPTER_FPS {
+        figs.figure6.push(RatePoint {
+            model: model.into(),
+            cache: cache.into(),
+            source: "chapter",
+            nodes,
+            ranks: 0,
+            fps,
+            predicted_fps: None,
+            runs: Vec::new(),
+        });
+    }
+    for &(cache, nodes, mb) in &CHAPTER_MEMORY {
+        figs.figure7.push(MemoryPoint {
+            cache: cache.into(),
+            source: "chapter",
+            nodes,
+            mib: mb * 1e6 / (1024.0 * 1024.0),
+            fraction: mb / CHAPTER_RM_MB,
+        });
+    }
+    if let Some(dcb) = display_model
+        && !a.copy_threads.is_empty()
+    {
+        let plan = Plan {
+            exe: exe.clone(),
+            dir: runs.clone(),
+            models: Vec::new(),
+            ranks: Vec::new(),
+            caches: Vec::new(),
+            transports: vec![Transport::Shm],
+            frames: a.display_frames,
+            width: 1920,
+            height: 1080,
+            copy_threads: a.copy_threads.clone(),
+            display_ranks: a.display_ranks,
+            timeout_seconds: 600,
+        };
+        for d in plan.display(&dcb)? {
+            let num = |k: &str| {
+                d[k].as_f64()
+                    .ok_or_else(|| anyhow!("the display benchmark's {k} is missing: {d}"))
+            };
+            figs.figure8.push(DisplayPoint {
+                copy_threads: num("copy_threads")? as u32,
+                source: "run",
+                fps: num("fps")?,
+                ceiling_fps: Some(num("ceiling_fps")?),
+            });
+        }
+    }
+    for &(threads, fps) in &CHAPTER_DISPLAY {
+        figs.figure8.push(DisplayPoint {
+            copy_threads: threads,
+            source: "chapter",
+            fps,
+            ceiling_fps: Some(127.0),
+        });
+    }
+    let json = out.join("figures.json");
+    dcrt::output::write_bytes(&json, serde_json::to_string_pretty(&figs)?.as_bytes())?;
+    draw_rates(&figs, &out.join("figure6.png"), &font)?;
+    draw_memory(&figs, &out.join("figure7.png"), &font)?;
+    draw_display(&figs, &out.join("figure8.png"), &font)?;
+    println!(
+        "wrote {}, figure6.png, figure7.png, figure8.png in {}",
+        json.display(),
+        out.display()
+    );
+    Ok(())
+}
+
+fn model(ranks: u32, bandwidth: Option<f64>, per_node: Option<u32>, w: f64) -> Model {
+    Model {
+        ranks,
+        bandwidth,
+        latency: None,
+        tile: TILE,
+        min_tile: MIN_TILE,
+        ranks_per_node: per_node,
+        work_exponent: w,
+        sharing: None,
+    }
+}
+
+/// The median fetch time of the traced fault rounds that fetched, in seconds: MPI's cost per
+/// round as measured here, which a faster wire does not remove (`None` without such rounds).
+fn round_latency(t: &Traces) -> Option<f64> {
+    let mut us: Vec<f64> = t
+        .files
+        .iter()
+        .flat_map(|f| &f.rounds)
+        .filter(|r| r.fetched_blocks > 0)
+        .map(|r| r.fetch_us)
+        .collect();
+    (!us.is_empty()).then(|| super::median(&mut us) * 1e-6)
+}
+
+fn memory_point(
+    cache: &str,
+    source: &'static str,
+    nodes: u32,
+    rows: u32,
+    blocks: u32,
+    format: Format,
+) -> MemoryPoint {
+    let bytes = u64::from(rows) * u64::from(format.block_bytes);
+    MemoryPoint {
+        cache: cache.into(),
+        source,
+        nodes,
+        mib: mib(bytes),
+        fraction: f64::from(rows) / f64::from(blocks.max(1)),
+    }
+}
+
+/// One traced mpirun job of `k` ranks on shared memory.
+fn job(
+    exe: &Path,
+    k: u32,
+    dcb: &Path,
+    cache: &str,
+    traces: &Path,
+    png: &Path,
+    a: &BenchArgs,
+) -> Result<()> {
+    let mut cmd = Command::new("mpirun");
+    cmd.arg("--oversubscribe")
+        .args(Transport::Shm.mca())
+        .args(["-n", &k.to_string()])
+        .arg(exe)
+        .arg("render")
+        .arg(dcb)
+        .arg("-o")
+        .arg(png)
+        .arg("--trace")
+        .arg(traces)
+        .args(["--frames", &a.frames.to_string()])
+        .args([
+            "--tile",
+            &TILE.to_string(),
+            "--min-tile",
+            &MIN_TILE.to_string(),
+        ])
+        .args(["--timeout", "600"]);
+    if cache != "replicated" {
+        cmd.args(["--cache", cache]);
+    }
+    let what = format!("mpirun -n {k} ({}, {cache})", dcb.display());
+    let out = cmd
+        .output()
+        .with_context(|| format!("{what}: cannot start (apt install openmpi-bin)"))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let tail: Vec<&str> = err.lines().rev().take(12).collect();
+        bail!(
+            "{what} failed ({}):\n{}",
+            out.status,
+            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        );
+    }
+    Ok(())
+}
+
+/// The figures' text needs a TrueType font: `DCRT_FONT`, else DejaVu Sans where Debian's
+/// fonts-dejavu-core puts it (scripts/setup.sh installs it).
+fn load_font() -> Result<String> {
+    const FAMILY: &str = "dcrt-sans";
+    let candidates: Vec<PathBuf> = match std::env::var_os("DCRT_FONT") {
+        Some(p) => vec![PathBuf::from(p)],
+        None => vec![
+            PathBuf::from("/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"),
+            PathBuf::from("/usr/share/fonts/TTF/DejaVuSans.ttf"),
+        ],
+    };
+    for p in &candidates {
+        if let Ok(bytes) = std::fs::read(p) {
+            // plotters keeps fonts for the life of the process.
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            plotters::style::register_font(FAMILY, FontStyle::Normal, bytes)
+                .map_err(|_| anyhow!("{}: not a TrueType font", p.display()))?;
+            return Ok(FAMILY.into());
+        }
+    }
+    bail!(
+        "no font for the figures' text at {}: install fonts-dejavu-core (scripts/setup.sh) or set DCRT_FONT to a .ttf file",
+        candidates
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" or ")
+    )
+}
+
+/// The caches of the runs in order, then those only the chapter's points have.
+fn drawn_caches<'a>(f: &Figures, all: impl Iterator<Item = &'a String>) -> Vec<String> {
+    let mut out = f.caches.clone();
+    for c in all {
+        if !out.contains(c) {
+            out.push(c.clone());
+        }
+    }
+    out
+}
+
+fn colour(i: usize) -> RGBColor {
+    let [r, g, b] = PALETTE[i % PALETTE.len()];
+    RGBColor(r, g, b)
+}
+
+const W: u32 = 1200;
+const H: u32 = 520;
+
+/// Draws into an RGB buffer and saves it with `image`.
+fn save(
+    path: &Path,
+    (w, h): (u32, u32),
+    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> Result<()>,
+) -> Result<()> {
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_error)?;
+        draw(root.clone())?;
+        root.present().map_err(plot_error)?;
+    }
+    image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| anyhow!("{}: picture buffer of the wrong size", path.display()))?
+        .save(path)
+        .with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// A log axis's tick without float noise: two significant digits.
+fn tick(v: f64) -> String {
+    if v >= 10.0 {
+        format!("{v:.0}")
+    } else if v >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
+fn plot_error<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow!("drawing a figure: {e:?}")
+}
+
+/// The range of a log axis covering `values`, a factor 1.5 of room each side.
+fn log_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if lo > hi {
+        (0.1, 10.0)
+    } else {
+        (lo / 1.5, hi * 1.5)
+    }
+}
+
+/// Figure 6: frame rate against nodes, one panel per model, a colour per cache; lines through
+/// the simulated points, dots for runs here, triangles for the chapter's.
+fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
+    save(path, (W, H), |root| {
+        let (charts, _) = root.split_vertically(H - 28);
+        let panels = charts.split_evenly((1, 2));
+        for (panel, g) in panels.iter().zip(MODELS) {
+            let name = g.name();
+            let pts: Vec<&RatePoint> = f.figure6.iter().filter(|p| p.model == name).collect();
+            let (lo, hi) = log_range(pts.iter().map(|p| p.fps));
+            let title = format!(
+                "Figure 6, {name}{}: frames/s against nodes ({}x{})",
+                if name == "assembly" {
+                    " (chapter: Boeing)"
+                } else {
+                    ""
+                },
+                f.width,
+                f.height
+            );
+            let mut chart = ChartBuilder::on(panel)
+                .caption(title, (font, 16))
+                .margin(12)
+                .x_label_area_size(36)
+                .y_label_area_size(56)
+                .build_cartesian_2d(0f64..62f64, (lo..hi).log_scale())
+                .map_err(plot_error)?;
+            chart
+                .configure_mesh()
+                .x_desc("nodes (one for display + balancer)")
+                .y_desc("frames per second")
+                .label_style((font, 12))
+                .y_label_formatter(&|v| tick(*v))
+                .draw()
+                .map_err(plot_error)?;
+            for (i, cache) in drawn_caches(f, f.figure6.iter().map(|p| &p.cache))
+                .iter()
+                .enumerate()
+            {
+                let c = colour(i);
+                let of = |source: &str| -> Vec<(f64, f64)> {
+                    pts.iter()
+                        .filter(|p| p.cache == *cache && p.source == source)
+                        .map(|p| (f64::from(p.nodes), p.fps))
+                        .collect()
+                };
+                chart
+                    .draw_series(LineSeries::new(of("simulated"), c.stroke_width(2)))
+                    .map_err(plot_error)?
+                    .label(cache.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                    });
+                chart
+                    .draw_series(of("run").into_iter().map(|p| Circle::new(p, 4, c.filled())))
+                    .map_err(plot_error)?;
+                chart
+                    .draw_series(
+                        of("chapter")
+                            .into_iter()
+                            .map(|p| TriangleMarker::new(p, 7, c.filled())),
+                    )
+                    .map_err(plot_error)?;
+            }
+            chart
+                .configure_series_labels()
+                .label_font((font, 12))
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .position(SeriesLabelPosition::LowerRight)
+                .draw()
+                .map_err(plot_error)?;
+        }
+        root.draw(&Text::new(
+            format!(
+                "lines: simulated on {:.0} MB/s + a fault round's median fetch here, a render rank per node; dots: runs here (median of --runs); triangles: the chapter (1920x1080)",
+                f.network_mb_s
+            ),
+            (12, H as i32 - 16),
+            (font, 12),
+        ))
+        .map_err(plot_error)?;
+        Ok(())
+    })
+}
+
+/// Figure 7: memory per node of rm against nodes, as a share of the replicated model.
+fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
+    save(path, (W / 2 + 100, H), |root| {
+        let (lo, hi) = log_range(f.figure7.iter().map(|p| p.fraction));
+        let rm_mib = f
+            .model_mib
+            .iter()
+            .find(|m| m.0 == "rm")
+            .map_or(0.0, |m| m.1);
+        let (area, _) = root.split_vertically(H - 28);
+        let mut chart = ChartBuilder::on(&area)
+            .caption(
+                format!("Figure 7, rm: memory per node ({rm_mib:.1} MiB model = 1)"),
+                (font, 16),
+            )
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0f64..62f64, (lo..hi).log_scale())
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("nodes")
+            .y_desc("blocks + cache per node / model")
+            .label_style((font, 12))
+            .y_label_formatter(&|v| tick(*v))
+            .draw()
+            .map_err(plot_error)?;
+        for (i, cache) in drawn_caches(f, f.figure7.iter().map(|p| &p.cache))
+            .iter()
+            .enumerate()
+        {
+            let c = colour(i);
+            let of = |source: &str| -> Vec<(f64, f64)> {
+                f.figure7
+                    .iter()
+                    .filter(|p| p.cache == *cache && p.source == source)
+                    .map(|p| (f64::from(p.nodes), p.fraction))
+                    .collect()
+            };
+            chart
+                .draw_series(LineSeries::new(of("model"), c.stroke_width(2)))
+                .map_err(plot_error)?
+                .label(cache.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                });
+            chart
+                .draw_series(of("run").into_iter().map(|p| Circle::new(p, 4, c.filled())))
+                .map_err(plot_error)?;
+            chart
+                .draw_series(
+                    of("chapter")
+                        .into_iter()
+                        .map(|p| TriangleMarker::new(p, 7, c.filled())),
+                )
+                .map_err(plot_error)?;
+        }
+        chart
+            .configure_series_labels()
+            .label_font((font, 12))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(plot_error)?;
+        root.draw(&Text::new(
+            "lines: owned blocks + root + cache lines; dots: runs here; triangles: the chapter (RM, 21,326 MB)",
+            (12, H as i32 - 16),
+            (font, 12),
+        ))
+        .map_err(plot_error)?;
+        Ok(())
+    })
+}
+
+/// Figure 8: the display's frame rate (1920x1080) against copy threads.
+fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
+    save(path, (W / 2 + 100, H), |root| {
+        let (lo, hi) = log_range(
+            f.figure8
+                .iter()
+                .flat_map(|p| [Some(p.fps), p.ceiling_fps])
+                .flatten(),
+        );
+        let (area, _) = root.split_vertically(H - 28);
+        let mut chart = ChartBuilder::on(&area)
+            .caption(
+                "Figure 8: display frames/s (1920x1080) against copy threads",
+                (font, 16),
+            )
+            .margin(12)
+            .x_label_area_size(36)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0.5f64..7.5f64, (lo..hi).log_scale())
+            .map_err(plot_error)?;
+        chart
+            .configure_mesh()
+            .x_desc("copy threads")
+            .y_desc("frames per second")
+            .label_style((font, 12))
+            .y_label_formatter(&|v| tick(*v))
+            .draw()
+            .map_err(plot_error)?;
+        let series = [
+            ("run", "runs here", colour(0)),
+            ("chapter", "chapter", colour(1)),
+        ];
+        for (source, label, c) in series {
+            let pts: Vec<&DisplayPoint> = f.figure8.iter().filter(|p| p.source == source).collect();
+            let fps: Vec<(f64, f64)> = pts
+                .iter()
+                .map(|p| (f64::from(p.copy_threads), p.fps))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(fps.clone(), c.stroke_width(2)))
+                .map_err(plot_error)?
+                .label(label)
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                });
+            chart
+                .draw_series(fps.into_iter().map(|p| Circle::new(p, 4, c.filled())))
+                .map_err(plot_error)?;
+            chart
+                .draw_series(pts.iter().filter_map(|p| {
+                    p.ceiling_fps
+                        .map(|y| Cross::new((f64::from(p.copy_threads), y), 5, c.stroke_width(2)))
+                }))
+                .map_err(plot_error)?;
+        }
+        chart
+            .configure_series_labels()
+            .label_font((font, 12))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::LowerRight)
+            .draw()
+            .map_err(plot_error)?;
+        root.draw(&Text::new(
+            "crosses: the link's limit (runs: the job's MPI bandwidth / 3 B a pixel; chapter: 127 fps)",
+            (12, H as i32 - 16),
+            (font, 12),
+        ))
+        .map_err(plot_error)?;
+        Ok(())
+    })
+}
