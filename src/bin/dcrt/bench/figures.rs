@@ -540,6 +540,92 @@ fn log_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     }
 }
 
+type Area<'b> = DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>;
+type LogChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<
+        plotters::coord::types::RangedCoordf64,
+        plotters::coord::combinators::LogCoord<f64>,
+    >,
+>;
+
+/// A chart on `area` with a linear x axis over `x` and a log y axis over `y`, mesh drawn.
+fn log_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    caption: &str,
+    font: &str,
+    x: std::ops::Range<f64>,
+    (lo, hi): (f64, f64),
+    (x_desc, y_desc): (&str, &str),
+) -> Result<LogChart<'a, 'b>> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (font, 16))
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(56)
+        .build_cartesian_2d(x, (lo..hi).log_scale())
+        .map_err(plot_error)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((font, 12))
+        .y_label_formatter(&|v| tick(*v))
+        .draw()
+        .map_err(plot_error)?;
+    Ok(chart)
+}
+
+/// One series in colour `c`: a line through `line`, in the legend as `label`; dots at `runs`
+/// and triangles at `chapter`.
+fn draw_series(
+    chart: &mut LogChart,
+    c: RGBColor,
+    label: &str,
+    line: Vec<(f64, f64)>,
+    runs: Vec<(f64, f64)>,
+    chapter: Vec<(f64, f64)>,
+) -> Result<()> {
+    chart
+        .draw_series(LineSeries::new(line, c.stroke_width(2)))
+        .map_err(plot_error)?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+    chart
+        .draw_series(runs.into_iter().map(|p| Circle::new(p, 4, c.filled())))
+        .map_err(plot_error)?;
+    chart
+        .draw_series(
+            chapter
+                .into_iter()
+                .map(|p| TriangleMarker::new(p, 7, c.filled())),
+        )
+        .map_err(plot_error)?;
+    Ok(())
+}
+
+fn draw_legend<'a, 'b: 'a>(
+    chart: &mut LogChart<'a, 'b>,
+    font: &str,
+    at: SeriesLabelPosition,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .label_font((font, 12))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(at)
+        .draw()
+        .map_err(plot_error)
+}
+
+/// The figure's footnote, below its axes.
+fn footnote(root: &Area, text: &str, font: &str) -> Result<()> {
+    root.draw(&Text::new(text, (12, H as i32 - 16), (font, 12)))
+        .map_err(plot_error)
+}
+
 /// Figure 6: frame rate against nodes, one panel per model, a colour per cache; lines through
 /// the simulated points, dots for runs here, triangles for the chapter's.
 fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
@@ -549,7 +635,6 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
         for (panel, g) in panels.iter().zip(MODELS) {
             let name = g.name();
             let pts: Vec<&RatePoint> = f.figure6.iter().filter(|p| p.model == name).collect();
-            let (lo, hi) = log_range(pts.iter().map(|p| p.fps));
             let title = format!(
                 "Figure 6, {name}{}: frames/s against nodes ({}x{})",
                 if name == "assembly" {
@@ -560,105 +645,49 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
                 f.width,
                 f.height
             );
-            let mut chart = ChartBuilder::on(panel)
-                .caption(title, (font, 16))
-                .margin(12)
-                .x_label_area_size(36)
-                .y_label_area_size(56)
-                .build_cartesian_2d(0f64..62f64, (lo..hi).log_scale())
-                .map_err(plot_error)?;
-            chart
-                .configure_mesh()
-                .x_desc("nodes (one for display + balancer)")
-                .y_desc("frames per second")
-                .label_style((font, 12))
-                .y_label_formatter(&|v| tick(*v))
-                .draw()
-                .map_err(plot_error)?;
+            let range = log_range(pts.iter().map(|p| p.fps));
+            let axes = ("nodes (one for display + balancer)", "frames per second");
+            let mut chart = log_chart(panel, &title, font, 0.0..62.0, range, axes)?;
             for (i, cache) in drawn_caches(f, f.figure6.iter().map(|p| &p.cache))
                 .iter()
                 .enumerate()
             {
-                let c = colour(i);
                 let of = |source: &str| -> Vec<(f64, f64)> {
                     pts.iter()
                         .filter(|p| p.cache == *cache && p.source == source)
                         .map(|p| (f64::from(p.nodes), p.fps))
                         .collect()
                 };
-                chart
-                    .draw_series(LineSeries::new(of("simulated"), c.stroke_width(2)))
-                    .map_err(plot_error)?
-                    .label(cache.as_str())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                    });
-                chart
-                    .draw_series(of("run").into_iter().map(|p| Circle::new(p, 4, c.filled())))
-                    .map_err(plot_error)?;
-                chart
-                    .draw_series(
-                        of("chapter")
-                            .into_iter()
-                            .map(|p| TriangleMarker::new(p, 7, c.filled())),
-                    )
-                    .map_err(plot_error)?;
+                let (line, runs, chapter) = (of("simulated"), of("run"), of("chapter"));
+                draw_series(&mut chart, colour(i), cache, line, runs, chapter)?;
             }
-            chart
-                .configure_series_labels()
-                .label_font((font, 12))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .position(SeriesLabelPosition::LowerRight)
-                .draw()
-                .map_err(plot_error)?;
+            draw_legend(&mut chart, font, SeriesLabelPosition::LowerRight)?;
         }
-        root.draw(&Text::new(
-            format!(
-                "lines: simulated on {:.0} MB/s + a fault round's median fetch here, a render rank per node; dots: runs here (median of --runs); triangles: the chapter (1920x1080)",
-                f.network_mb_s
-            ),
-            (12, H as i32 - 16),
-            (font, 12),
-        ))
-        .map_err(plot_error)?;
-        Ok(())
+        let note = format!(
+            "lines: simulated on {:.0} MB/s + a fault round's median fetch here, a render rank per node; dots: runs here (median of --runs); triangles: the chapter (1920x1080)",
+            f.network_mb_s
+        );
+        footnote(&root, &note, font)
     })
 }
 
 /// Figure 7: memory per node of rm against nodes, as a share of the replicated model.
 fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
     save(path, (W / 2 + 100, H), |root| {
-        let (lo, hi) = log_range(f.figure7.iter().map(|p| p.fraction));
         let rm_mib = f
             .model_mib
             .iter()
             .find(|m| m.0 == "rm")
             .map_or(0.0, |m| m.1);
         let (area, _) = root.split_vertically(H - 28);
-        let mut chart = ChartBuilder::on(&area)
-            .caption(
-                format!("Figure 7, rm: memory per node ({rm_mib:.1} MiB model = 1)"),
-                (font, 16),
-            )
-            .margin(12)
-            .x_label_area_size(36)
-            .y_label_area_size(56)
-            .build_cartesian_2d(0f64..62f64, (lo..hi).log_scale())
-            .map_err(plot_error)?;
-        chart
-            .configure_mesh()
-            .x_desc("nodes")
-            .y_desc("blocks + cache per node / model")
-            .label_style((font, 12))
-            .y_label_formatter(&|v| tick(*v))
-            .draw()
-            .map_err(plot_error)?;
+        let title = format!("Figure 7, rm: memory per node ({rm_mib:.1} MiB model = 1)");
+        let range = log_range(f.figure7.iter().map(|p| p.fraction));
+        let axes = ("nodes", "blocks + cache per node / model");
+        let mut chart = log_chart(&area, &title, font, 0.0..62.0, range, axes)?;
         for (i, cache) in drawn_caches(f, f.figure7.iter().map(|p| &p.cache))
             .iter()
             .enumerate()
         {
-            let c = colour(i);
             let of = |source: &str| -> Vec<(f64, f64)> {
                 f.figure7
                     .iter()
@@ -666,69 +695,31 @@ fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
                     .map(|p| (f64::from(p.nodes), p.fraction))
                     .collect()
             };
-            chart
-                .draw_series(LineSeries::new(of("model"), c.stroke_width(2)))
-                .map_err(plot_error)?
-                .label(cache.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                });
-            chart
-                .draw_series(of("run").into_iter().map(|p| Circle::new(p, 4, c.filled())))
-                .map_err(plot_error)?;
-            chart
-                .draw_series(
-                    of("chapter")
-                        .into_iter()
-                        .map(|p| TriangleMarker::new(p, 7, c.filled())),
-                )
-                .map_err(plot_error)?;
+            let (line, runs, chapter) = (of("model"), of("run"), of("chapter"));
+            draw_series(&mut chart, colour(i), cache, line, runs, chapter)?;
         }
-        chart
-            .configure_series_labels()
-            .label_font((font, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_error)?;
-        root.draw(&Text::new(
+        draw_legend(&mut chart, font, SeriesLabelPosition::MiddleRight)?;
+        footnote(
+            &root,
             "lines: owned blocks + root + cache lines; dots: runs here; triangles: the chapter (RM, 21,326 MB)",
-            (12, H as i32 - 16),
-            (font, 12),
-        ))
-        .map_err(plot_error)?;
-        Ok(())
+            font,
+        )
     })
 }
 
 /// Figure 8: the display's frame rate (1920x1080) against copy threads.
 fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
     save(path, (W / 2 + 100, H), |root| {
-        let (lo, hi) = log_range(
+        let range = log_range(
             f.figure8
                 .iter()
                 .flat_map(|p| [Some(p.fps), p.ceiling_fps])
                 .flatten(),
         );
         let (area, _) = root.split_vertically(H - 28);
-        let mut chart = ChartBuilder::on(&area)
-            .caption(
-                "Figure 8: display frames/s (1920x1080) against copy threads",
-                (font, 16),
-            )
-            .margin(12)
-            .x_label_area_size(36)
-            .y_label_area_size(56)
-            .build_cartesian_2d(0.5f64..7.5f64, (lo..hi).log_scale())
-            .map_err(plot_error)?;
-        chart
-            .configure_mesh()
-            .x_desc("copy threads")
-            .y_desc("frames per second")
-            .label_style((font, 12))
-            .y_label_formatter(&|v| tick(*v))
-            .draw()
-            .map_err(plot_error)?;
+        let title = "Figure 8: display frames/s (1920x1080) against copy threads";
+        let axes = ("copy threads", "frames per second");
+        let mut chart = log_chart(&area, title, font, 0.5..7.5, range, axes)?;
         let series = [
             ("run", "runs here", colour(0)),
             ("chapter", "chapter", colour(1)),
@@ -739,16 +730,7 @@ fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
                 .iter()
                 .map(|p| (f64::from(p.copy_threads), p.fps))
                 .collect();
-            chart
-                .draw_series(LineSeries::new(fps.clone(), c.stroke_width(2)))
-                .map_err(plot_error)?
-                .label(label)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                });
-            chart
-                .draw_series(fps.into_iter().map(|p| Circle::new(p, 4, c.filled())))
-                .map_err(plot_error)?;
+            draw_series(&mut chart, c, label, fps.clone(), fps, Vec::new())?;
             chart
                 .draw_series(pts.iter().filter_map(|p| {
                     p.ceiling_fps
@@ -756,20 +738,11 @@ fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
                 }))
                 .map_err(plot_error)?;
         }
-        chart
-            .configure_series_labels()
-            .label_font((font, 12))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()
-            .map_err(plot_error)?;
-        root.draw(&Text::new(
+        draw_legend(&mut chart, font, SeriesLabelPosition::LowerRight)?;
+        footnote(
+            &root,
             "crosses: the link's limit (runs: the job's MPI bandwidth / 3 B a pixel; chapter: 127 fps)",
-            (12, H as i32 - 16),
-            (font, 12),
-        ))
-        .map_err(plot_error)?;
-        Ok(())
+            font,
+        )
     })
 }
