@@ -18,6 +18,10 @@ pub enum CacheMap {
     Ize,
     /// `k mod lines` (DeMarle et al.).
     Demarle,
+    /// Any line: a round's faults take the lines used least recently, never one loaded or used
+    /// in the same round (an associative cache; the GPU finds blocks through the row table, so
+    /// where a block lies costs it nothing).
+    Lru,
 }
 
 /// This rank's place among the render ranks.
@@ -86,7 +90,8 @@ impl Ranks {
     }
 }
 
-/// The cache line of a block the rank does not own. Mirrors `cache_line` in
+/// The cache line of a block the rank does not own under a direct mapping (`Lru` counts waiting
+/// rays in the same `k mod lines` buckets; its blocks go to any line). Mirrors `cache_line` in
 /// shaders/shared/dc.wgsl.
 pub fn cache_line(map: CacheMap, ranks: Ranks, lines: u32, k: u32) -> u32 {
     match map {
@@ -94,7 +99,7 @@ pub fn cache_line(map: CacheMap, ranks: Ranks, lines: u32, k: u32) -> u32 {
             let n = ranks.n;
             (k - (k + (n - ranks.rank)) / n) % lines
         }
-        CacheMap::Demarle => k % lines,
+        CacheMap::Demarle | CacheMap::Lru => k % lines,
     }
 }
 

@@ -23,6 +23,10 @@ pub struct CachePolicy {
     tags: Vec<u32>,
     /// Row of every block (`NONE` when absent): the GPU's `block_rows` table.
     block_rows: Vec<u32>,
+    /// Rounds planned so far, and the round each line was last loaded in (0: never): `Lru`'s
+    /// recency.
+    round: u64,
+    stamps: Vec<u64>,
 }
 
 /// A block to fetch into a cache line.
@@ -60,6 +64,8 @@ impl CachePolicy {
             cache_row: ranks.resident_rows(count),
             tags: vec![NONE; lines as usize],
             block_rows,
+            round: 0,
+            stamps: vec![0; lines as usize],
         }
     }
 
@@ -95,10 +101,27 @@ impl CachePolicy {
     /// that waited on each line. The plan's loads are taken as done: fetch and upload them
     /// before the next dispatch, or give up the frame.
     pub fn plan_round(&mut self, faults: &[u32], waiting: &[u32]) -> RoundPlan {
+        self.round += 1;
         let mut claimed = vec![false; self.lines as usize];
         let mut plan = RoundPlan::default();
+        // Lru: the round's lines, least recently loaded first (empty lines before all), at most
+        // one fault each; faults past them fault again.
+        let mut free = Vec::new();
+        if self.map == CacheMap::Lru {
+            free = (0..self.lines).collect();
+            free.sort_by_key(|&l| (self.stamps[l as usize], l));
+            free.truncate(faults.len());
+            free.reverse();
+        }
         for &k in faults {
-            let line = cache_line(self.map, self.ranks, self.lines, k);
+            let line = match self.map {
+                CacheMap::Lru => match free.pop() {
+                    Some(l) => l,
+                    // Every line is taken this round: the bucket only names where it waits.
+                    None => cache_line(self.map, self.ranks, self.lines, k),
+                },
+                _ => cache_line(self.map, self.ranks, self.lines, k),
+            };
             let first = !std::mem::replace(&mut claimed[line as usize], true);
             let old = self.tags[line as usize];
             plan.faults.push(Fault {
@@ -106,7 +129,10 @@ impl CachePolicy {
                 owner: self.ranks.owner(k),
                 line,
                 evicted: (first && old != NONE).then_some(old),
-                waiting: waiting.get(line as usize).copied().unwrap_or(0),
+                waiting: waiting
+                    .get(cache_line(self.map, self.ranks, self.lines, k) as usize)
+                    .copied()
+                    .unwrap_or(0),
                 served: first,
             });
             if first {
@@ -118,6 +144,7 @@ impl CachePolicy {
             }
         }
         for l in &plan.loads {
+            self.stamps[l.line as usize] = self.round;
             let old = std::mem::replace(&mut self.tags[l.line as usize], l.block);
             for (b, r) in [(old, NONE), (l.block, l.row)] {
                 if b != NONE {
@@ -209,6 +236,44 @@ mod tests {
         let plan = p.plan_round(&[2, 3, 5, 6], &[0; 4]);
         let lines: Vec<u32> = plan.loads.iter().map(|l| l.line).collect();
         assert_eq!(lines, vec![2, 3, 1]);
+    }
+
+    #[test]
+    fn lru_takes_the_least_recently_loaded_lines_one_fault_each() {
+        // Rank 0 of 2, 3 lines. Round 1 fills lines 0, 1 in fault order.
+        let mut p = policy(2, 0, CacheMap::Lru, 3, 40);
+        let first = p.plan_round(&[5, 7], &[0; 3]);
+        let lines: Vec<u32> = first.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![0, 1]);
+        // Round 2: the empty line 2 first, then line 0 (loaded before line 1), then line 1; the
+        // fourth fault finds no line left and faults again.
+        let second = p.plan_round(&[3, 9, 15, 21], &[0; 3]);
+        let lines: Vec<u32> = second.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![2, 0, 1]);
+        let served: Vec<bool> = second.faults.iter().map(|f| f.served).collect();
+        assert_eq!(served, vec![true, true, true, false]);
+        let evicted: Vec<Option<u32>> = second.faults.iter().map(|f| f.evicted).collect();
+        assert_eq!(evicted, vec![None, Some(5), Some(7), None]);
+        assert_eq!(p.block_rows()[5], NONE);
+        assert_eq!(p.block_rows()[21], NONE);
+        // 3, 9 and 15 share DeMarle's line 0 of 3 (and Ize's line 1): held at once here.
+        for k in [3, 9, 15] {
+            assert_ne!(p.block_rows()[k], NONE, "block {k}");
+        }
+    }
+
+    #[test]
+    fn a_single_line_lru_cache_makes_progress_every_round() {
+        let mut p = policy(3, 1, CacheMap::Lru, 1, 30);
+        let mut wanted: Vec<u32> = (0..30).filter(|k| !p.ranks().resident(*k)).collect();
+        while let Some(&k) = wanted.first() {
+            let plan = p.plan_round(&wanted, &[wanted.len() as u32]);
+            assert_eq!(plan.loads.len(), 1);
+            assert_eq!(plan.loads[0].block, k);
+            assert_eq!(p.block_rows()[k as usize], p.cache_row());
+            assert_eq!(plan.faults.iter().filter(|f| f.served).count(), 1);
+            wanted.remove(0);
+        }
     }
 
     #[test]

@@ -129,6 +129,9 @@ pub struct Summary {
     pub hit_rate: f64,
     pub fetched_blocks: u64,
     pub fetched_bytes: u64,
+    /// Distinct borrowed blocks the frame looked up (absent in traces of older builds).
+    #[serde(default)]
+    pub distinct_blocks: u64,
     pub frame_ms: f64,
     pub trace_ms: f64,
     pub fetch_ms: f64,

@@ -31,6 +31,9 @@ pub struct FrameStats {
     pub misses: u64,
     pub fetched_blocks: u64,
     pub fetched_bytes: u64,
+    /// Distinct borrowed blocks the frame's rays looked up (resident in the cache or fetched):
+    /// `fetched_blocks` over it is how often the frame fetched each block it needed.
+    pub distinct_blocks: u64,
     pub fetch_seconds: f64,
     pub upload_seconds: f64,
     /// Rounds that had faults.

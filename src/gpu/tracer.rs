@@ -38,6 +38,9 @@ pub const DEFAULT_STEP_BUDGET: u32 = 4096;
 /// for 2048 rays a batch in a 128 MiB storage buffer.
 pub const MAX_STACK: u32 = 4096;
 const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
+/// The fewest pixels a batch is cut to so that its blocks fit the cache: the top of the tree is
+/// fetched again for every batch, and a smaller batch's rays share too little of the rest.
+const MIN_FIT_PIXELS: u32 = 4096;
 const WORKGROUP: u32 = 64;
 /// The largest number of distinct faults one round records (more fault again next round).
 const FAULT_CAP: u32 = 1 << 16;
@@ -109,6 +112,7 @@ pub(super) struct DcBuffers {
     pub faults: wgpu::Buffer,
     pub requested: wgpu::Buffer,
     pub waiters: wgpu::Buffer,
+    pub touched: wgpu::Buffer,
 }
 
 /// What starts a batch's trace rounds: primary rays, or a wave of secondary rays.
@@ -152,6 +156,9 @@ pub struct Tracer<'g> {
     constants: Constants,
     /// Called after each sample pass of a batch with (passes done, passes in the rectangle).
     progress: Option<Progress>,
+    /// With a cache, the pixels a batch may hold so that its blocks fit the cache, from the last
+    /// frame's distinct blocks (`None`: they fit, or no frame has ended yet).
+    fit_pixels: Option<u32>,
 }
 
 /// What `Tracer::set_progress` installs.
@@ -225,6 +232,7 @@ impl<'g> Tracer<'g> {
                     faults: p(),
                     requested: p(),
                     waiters: p(),
+                    touched: p(),
                 };
                 (None, bufs)
             }
@@ -243,7 +251,7 @@ impl<'g> Tracer<'g> {
                 params.dc_lines = d.lines;
                 params.dc_map = match d.map {
                     CacheMap::Ize => 0,
-                    CacheMap::Demarle => 1,
+                    CacheMap::Demarle | CacheMap::Lru => 1,
                 };
                 params.dc_cache_row = policy.cache_row();
                 params.dc_root_row = d.ranks.root_row(blocks);
@@ -267,6 +275,11 @@ impl<'g> Tracer<'g> {
                     waiters: gpu.buffer(
                         "waiters",
                         4 * u64::from(d.lines),
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    touched: gpu.buffer(
+                        "touched",
+                        4 * u64::from(blocks),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
                 };
@@ -307,6 +320,7 @@ impl<'g> Tracer<'g> {
             depth: model.depth,
             constants,
             progress: None,
+            fit_pixels: None,
         };
         tracer.bound = tracer.bind_kernels();
         Ok(tracer)
@@ -326,6 +340,7 @@ impl<'g> Tracer<'g> {
             "faults" => &self.dc_bufs.faults,
             "requested" => &self.dc_bufs.requested,
             "waiters" => &self.dc_bufs.waiters,
+            "touched" => &self.dc_bufs.touched,
             _ => return None,
         };
         Some(buf.as_entire_binding())
@@ -385,7 +400,7 @@ impl<'g> Tracer<'g> {
         let mut stats = self.begin_frame();
         let rect = Rect::whole(width, height);
         let pixels = self.render_rect(basis, background, rect, &mut stats)?;
-        self.end_frame(&mut stats);
+        self.end_frame(&mut stats)?;
         let frame = Frame {
             width,
             height,
@@ -394,11 +409,14 @@ impl<'g> Tracer<'g> {
         Ok((frame, stats))
     }
 
-    /// Starts a frame made of `render_rect` calls: clears the cache trace; the stats returned
-    /// start the frame's clock.
+    /// Starts a frame made of `render_rect` calls: clears the cache trace and the marks of the
+    /// blocks the frame touches; the stats returned start the frame's clock.
     pub fn begin_frame(&mut self) -> FrameStats {
         if let Some(dc) = self.dc.as_mut() {
             dc.trace = FrameTrace::default();
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            enc.clear_buffer(&self.dc_bufs.touched, 0, None);
+            self.gpu.queue.submit([enc.finish()]);
         }
         self.frame_start = Instant::now();
         FrameStats::default()
@@ -446,6 +464,13 @@ impl<'g> Tracer<'g> {
                 self.batch.rays_cap
             )));
         }
+        // A batch's rays advance in lockstep: when their blocks outnumber the cache's lines, a
+        // block is evicted before all its rays have used it and fetched again. Smaller batches
+        // trade rounds for fetches (docs/ARCHITECTURE.md, The round loop).
+        let tiles_per_batch = match self.fit_pixels {
+            Some(p) => tiles_per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
+            None => tiles_per_batch,
+        };
         let mut first = 0;
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
         let mut passed = 0u64;
@@ -497,10 +522,25 @@ impl<'g> Tracer<'g> {
         Ok(pixels)
     }
 
-    /// Ends a frame begun with `begin_frame`: its wall time. (The frame loop,
+    /// Ends a frame begun with `begin_frame`: its wall time, and with a cache the distinct
+    /// borrowed blocks it touched (read after the clock stops). (The frame loop,
     /// `render::frames`, makes the trace's summary from the stats.)
-    pub fn end_frame(&mut self, stats: &mut FrameStats) {
+    pub fn end_frame(&mut self, stats: &mut FrameStats) -> Result<()> {
         stats.seconds = self.frame_start.elapsed().as_secs_f64();
+        if self.dc.is_some() {
+            let b = &self.dc_bufs.touched;
+            let marks = self.gpu.read_buffer(b, 0, b.size())?;
+            let marks: Vec<u32> = bytemuck::pod_collect_to_vec(&marks);
+            stats.distinct_blocks = marks.iter().filter(|&&m| m != 0).count() as u64;
+            self.fit_pixels = self.dc.as_ref().and_then(|dc| {
+                let lines = u64::from(dc.policy.lines());
+                (stats.distinct_blocks > lines).then(|| {
+                    let fit = stats.rays * lines / stats.distinct_blocks;
+                    fit.min(u64::from(u32::MAX)) as u32
+                })
+            });
+        }
+        Ok(())
     }
 
     /// Submits one direct dispatch of a shading kernel over the batch's pixel slots (no wait).

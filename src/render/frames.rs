@@ -118,7 +118,7 @@ pub fn run_frames(
             tracer: &mut *tracer,
             stats: &mut stats,
         })?;
-        tracer.end_frame(&mut stats);
+        tracer.end_frame(&mut stats)?;
         let mut trace = tracer.take_trace();
         let cache = tracer.cache().map(|(_, lines, map)| (lines, map));
         trace.summary = summarize(&stats, cache, frame, plan.role);
@@ -207,6 +207,7 @@ pub fn summarize(
         s.hit_rate = hit_rate(stats);
         s.fetched_blocks = stats.fetched_blocks;
         s.fetched_bytes = stats.fetched_bytes;
+        s.distinct_blocks = stats.distinct_blocks;
         s.fetch_ms = stats.fetch_seconds * 1e3;
         s.upload_ms = stats.upload_seconds * 1e3;
     }
@@ -226,6 +227,7 @@ mod tests {
             misses: 10,
             fetched_blocks: 9,
             fetched_bytes: 9 * 8192,
+            distinct_blocks: 6,
             seconds: 0.25,
             trace_seconds: 0.125,
             shade_seconds: 0.0625,
@@ -281,6 +283,7 @@ mod tests {
             hit_rate: 0.75,
             fetched_blocks: 9,
             fetched_bytes: 9 * 8192,
+            distinct_blocks: 6,
             frame_ms: 250.0,
             trace_ms: 125.0,
             fetch_ms: 31.25,

@@ -39,7 +39,7 @@ fn sweep(g: Generator) {
     let sizes = ["1line", "1/32", "1/8", "1/2", "1/1"];
     for n in [1u32, 2, 3, 4, 7] {
         for size in sizes {
-            for map in [CacheMap::Ize, CacheMap::Demarle] {
+            for map in [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru] {
                 let rank = n / 2;
                 let o = DcOptions {
                     ranks: n,
@@ -69,6 +69,18 @@ fn sweep(g: Generator) {
                     .sum();
                 assert_eq!(s.fetched_blocks, served, "{what}");
                 assert_eq!(stats.fetched_blocks, served, "{what}");
+                // A cold frame fetches every borrowed block it looks up, and only those.
+                let fetched: std::collections::BTreeSet<u32> = trace
+                    .rounds
+                    .iter()
+                    .flat_map(|r| r.faults.iter().filter(|f| f.served).map(|f| f.block))
+                    .collect();
+                assert_eq!(stats.distinct_blocks, fetched.len() as u64, "{what}");
+                // Any line will do for Lru: while the frame's blocks fit, none is fetched twice.
+                let lines = t.cache().map_or(0, |(_, l, _)| l);
+                if map == CacheMap::Lru && stats.distinct_blocks <= u64::from(lines) {
+                    assert_eq!(stats.fetched_blocks, stats.distinct_blocks, "{what}");
+                }
                 if n > 1 {
                     assert!(s.lookups > 0, "{what}: borrowed blocks are looked up");
                     assert!(s.fetched_blocks > 0, "{what}: a cold cache fetches");
@@ -95,4 +107,56 @@ fn rm_dc_images_match_replicated() {
 #[test]
 fn assembly_dc_images_match_replicated() {
     sweep(Generator::Assembly);
+}
+
+#[test]
+fn batches_shrink_to_the_blocks_a_cache_holds_and_images_stay_the_same() {
+    // 128x96 pixels of rm need far more blocks than a 1/32 cache holds: after the first frame
+    // shows it, frames are traced in batches of at least 4096 pixels (64 tiles) that come
+    // closest to fitting, with the same image.
+    let gpu = gpu();
+    let (w, h) = (128, 96);
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let basis = camera.basis(w, h);
+    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    for map in [CacheMap::Ize, CacheMap::Lru] {
+        let o = DcOptions {
+            ranks: 4,
+            rank: 1,
+            cache: CacheSize::parse("1/32").unwrap(),
+            map,
+        };
+        let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
+        let lines = t.cache().map_or(0, |(_, l, _)| l);
+        let (first, s1) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        let (second, s2) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        let what = format!("{map:?}");
+        eprintln!(
+            "{what}: lines {lines}, distinct {} {}, batches {} {}, fetched {} {}, rounds {} {}",
+            s1.distinct_blocks,
+            s2.distinct_blocks,
+            s1.batches,
+            s2.batches,
+            s1.fetched_blocks,
+            s2.fetched_blocks,
+            s1.fault_rounds,
+            s2.fault_rounds
+        );
+        assert!(
+            s1.distinct_blocks > u64::from(lines),
+            "{what}: the test needs a small cache"
+        );
+        assert_eq!(
+            s1.distinct_blocks, s2.distinct_blocks,
+            "{what}: the same view"
+        );
+        assert_eq!(s1.batches, 1, "{what}");
+        let fit = (s1.rays * u64::from(lines) / s1.distinct_blocks).max(4096);
+        let tiles = u64::from(w.div_ceil(8) * h.div_ceil(8));
+        let want = tiles.div_ceil(fit / 64);
+        assert_eq!(u64::from(s2.batches), want, "{what}");
+        assert!(s2.batches > 1, "{what}");
+        same(&reference, &first, &what);
+        same(&reference, &second, &what);
+    }
 }

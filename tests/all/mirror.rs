@@ -119,7 +119,11 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
 fn cache_line_matches_the_gpu_for_both_mappings() {
     let gpu = gpu();
     let cases = cases(4096);
-    for (map, code) in [(CacheMap::Ize, 0), (CacheMap::Demarle, 1)] {
+    for (map, code) in [
+        (CacheMap::Ize, 0),
+        (CacheMap::Demarle, 1),
+        (CacheMap::Lru, 1),
+    ] {
         for (n, rank, lines) in [(1, 0, 7), (3, 1, 64), (8, 5, 1000), (5, 4, 1)] {
             let p = Params {
                 dc_ranks: n,

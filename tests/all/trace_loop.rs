@@ -192,7 +192,7 @@ fn rectangles_tile_the_image_exactly() {
             }
         }
     }
-    tracer.end_frame(&mut stats);
+    tracer.end_frame(&mut stats).unwrap();
     assert_eq!(stats.rays, u64::from(w * h));
     for (i, (p, q)) in whole.pixels.iter().zip(&pieced).enumerate() {
         let q = q.unwrap_or_else(|| panic!("pixel {i} never rendered"));

@@ -21,6 +21,10 @@ struct DcRow {
     frame_ms: f64,
     first_frame_ms: f64,
     fetched_bytes_per_frame: f64,
+    /// Distinct borrowed blocks the warm frames looked up, and blocks fetched per such block
+    /// (above 1: blocks fetched more than once in a frame).
+    distinct_blocks_per_frame: f64,
+    fetches_per_distinct_block: f64,
     rounds_per_frame: f64,
     fault_rounds_per_frame: f64,
     misses_per_fault_round: f64,
@@ -74,7 +78,8 @@ pub fn run(
     let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
     let blocks = &prepared.blocks;
     let mut configs: Vec<Option<DcOptions>> = vec![None];
-    for map in [CacheMap::Ize, CacheMap::Demarle] {
+    const MAPS: [CacheMap; 3] = [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru];
+    for map in MAPS {
         for c in &a.caches {
             configs.push(Some(DcOptions {
                 ranks: a.virtual_ranks,
@@ -87,8 +92,7 @@ pub fn run(
     let mut rows = Vec::new();
     for (cfg, cache_name) in configs.iter().zip(
         std::iter::once(None).chain(
-            [0, 1]
-                .iter()
+            MAPS.iter()
                 .flat_map(|_| a.caches.iter().map(|c| Some(c.clone()))),
         ),
     ) {
@@ -131,6 +135,15 @@ pub fn run(
             frame_ms: secs / n * 1e3,
             first_frame_ms: first_ms,
             fetched_bytes_per_frame: sum(&|s| s.fetched_bytes as f64) / n,
+            distinct_blocks_per_frame: sum(&|s| s.distinct_blocks as f64) / n,
+            fetches_per_distinct_block: {
+                let d = sum(&|s| s.distinct_blocks as f64);
+                if d > 0.0 {
+                    sum(&|s| s.fetched_blocks as f64) / d
+                } else {
+                    0.0
+                }
+            },
             rounds_per_frame: sum(&|s| f64::from(s.rounds)) / n,
             fault_rounds_per_frame: fault_rounds / n,
             misses_per_fault_round: if fault_rounds > 0.0 {
@@ -230,6 +243,8 @@ fn print(report: &DcReport) {
         ("frame ms", 9),
         ("cold ms", 9),
         ("MiB/frame", 10),
+        ("distinct", 9),
+        ("fetch/d", 7),
         ("rounds", 7),
         ("faultR", 7),
         ("miss/rnd", 9),
@@ -254,6 +269,8 @@ fn print(report: &DcReport) {
             format!("{:.1}", r.frame_ms),
             format!("{:.1}", r.first_frame_ms),
             format!("{:.2}", r.fetched_bytes_per_frame / 1048576.0),
+            format!("{:.0}", r.distinct_blocks_per_frame),
+            format!("{:.2}", r.fetches_per_distinct_block),
             format!("{:.1}", r.rounds_per_frame),
             format!("{:.1}", r.fault_rounds_per_frame),
             format!("{:.0}", r.misses_per_fault_round),
