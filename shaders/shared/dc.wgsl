@@ -24,6 +24,9 @@ struct Faults {
 // Per block, nonzero once a ray of the frame looked it up through the cache: the host counts the
 // frame's distinct borrowed blocks from it. A plain store: racing writers write the same value.
 @group(0) @binding(8) var<storage, read_write> touched: array<u32>;
+// Per cache line, nonzero once a ray of the round found its block there: the host's recency for
+// the Lru mapping. A plain store, as `touched`.
+@group(0) @binding(9) var<storage, read_write> line_used: array<u32>;
 
 // Per invocation, summed into Stats by the trace kernel.
 var<private> dc_lookups: u32 = 0u;
@@ -52,6 +55,7 @@ fn locate(k: u32) -> u32 {
     touched[k] = 1u;
     if row != NONE {
         dc_hits += 1u;
+        line_used[row - params.dc_cache_row] = 1u;
         return row;
     }
     dc_misses += 1u;

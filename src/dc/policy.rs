@@ -23,8 +23,8 @@ pub struct CachePolicy {
     tags: Vec<u32>,
     /// Row of every block (`NONE` when absent): the GPU's `block_rows` table.
     block_rows: Vec<u32>,
-    /// Rounds planned so far, and the round each line was last loaded in (0: never): `Lru`'s
-    /// recency.
+    /// Rounds planned so far, and the round each line was last loaded or used in (0: never):
+    /// `Lru`'s recency.
     round: u64,
     stamps: Vec<u64>,
 }
@@ -97,6 +97,16 @@ impl CachePolicy {
         (t != NONE).then_some(t)
     }
 
+    /// Records the lines the GPU found a block in during the round about to be planned
+    /// (`used[line]` nonzero).
+    pub fn mark_used(&mut self, used: &[u32]) {
+        for (stamp, &u) in self.stamps.iter_mut().zip(used) {
+            if u != 0 {
+                *stamp = self.round + 1;
+            }
+        }
+    }
+
     /// Plans a round: `faults` is the GPU's deduplicated fault list, `waiting[line]` the rays
     /// that waited on each line. The plan's loads are taken as done: fetch and upload them
     /// before the next dispatch, or give up the frame.
@@ -104,8 +114,8 @@ impl CachePolicy {
         self.round += 1;
         let mut claimed = vec![false; self.lines as usize];
         let mut plan = RoundPlan::default();
-        // Lru: the round's lines, least recently loaded first (empty lines before all), at most
-        // one fault each; faults past them fault again.
+        // Lru: the round's lines, least recently loaded or used first (empty lines before all),
+        // at most one fault each; faults past them fault again.
         let mut free = Vec::new();
         if self.map == CacheMap::Lru {
             free = (0..self.lines).collect();
@@ -260,6 +270,24 @@ mod tests {
         for k in [3, 9, 15] {
             assert_ne!(p.block_rows()[k], NONE, "block {k}");
         }
+    }
+
+    #[test]
+    fn lru_keeps_the_lines_rays_used() {
+        // Lines 0 and 1 loaded in round 1; in round 2 the GPU found its block in line 0 only, so
+        // line 1 goes first although line 0 was loaded no later.
+        let mut p = policy(2, 0, CacheMap::Lru, 2, 40);
+        p.plan_round(&[5, 7], &[0; 2]);
+        p.mark_used(&[1, 0]);
+        let plan = p.plan_round(&[9], &[0; 2]);
+        assert_eq!(plan.loads[0].line, 1);
+        assert_eq!(plan.faults[0].evicted, Some(7));
+        assert_ne!(p.block_rows()[5], NONE);
+        // Direct mappings take no notice.
+        let mut p = policy(2, 0, CacheMap::Demarle, 2, 40);
+        p.plan_round(&[5, 7], &[0; 2]);
+        p.mark_used(&[1, 0]);
+        assert_eq!(p.plan_round(&[9], &[0; 2]).loads[0].line, 1);
     }
 
     #[test]

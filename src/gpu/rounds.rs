@@ -111,8 +111,11 @@ impl Tracer<'_> {
                 let bufs = &self.dc_bufs;
                 let bytes = fault_bytes(self.params.dc_fault_cap);
                 enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
+                // The lines' waiting rays, then which lines the round used.
                 let wait_bytes = 4 * u64::from(dc.policy.lines());
                 enc.copy_buffer_to_buffer(&bufs.waiters, 0, &b.waiter_readback, 0, wait_bytes);
+                let r = &b.waiter_readback;
+                enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
             }
             let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
@@ -182,6 +185,7 @@ impl Tracer<'_> {
             enc.clear_buffer(&b.faults, 0, Some(size_of::<FaultHeader>() as u64));
             enc.clear_buffer(&b.requested, 0, None);
             enc.clear_buffer(&b.waiters, 0, None);
+            enc.clear_buffer(&b.line_used, 0, None);
         }
     }
 
@@ -209,6 +213,8 @@ impl Tracer<'_> {
         let list: Vec<u32> = bytemuck::pod_collect_to_vec(&faults[head..head + 4 * n]);
         let lines = dc.policy.lines() as usize;
         let waiting: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[..4 * lines]);
+        let used: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[4 * lines..8 * lines]);
+        dc.policy.mark_used(&used);
         let plan = dc.policy.plan_round(&list, &waiting);
         let mut rec = Round {
             batch: stats.batches,

@@ -113,6 +113,7 @@ pub(super) struct DcBuffers {
     pub requested: wgpu::Buffer,
     pub waiters: wgpu::Buffer,
     pub touched: wgpu::Buffer,
+    pub line_used: wgpu::Buffer,
 }
 
 /// What starts a batch's trace rounds: primary rays, or a wave of secondary rays.
@@ -233,6 +234,7 @@ impl<'g> Tracer<'g> {
                     requested: p(),
                     waiters: p(),
                     touched: p(),
+                    line_used: p(),
                 };
                 (None, bufs)
             }
@@ -280,6 +282,11 @@ impl<'g> Tracer<'g> {
                     touched: gpu.buffer(
                         "touched",
                         4 * u64::from(blocks),
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    line_used: gpu.buffer(
+                        "line used",
+                        4 * u64::from(d.lines),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
                 };
@@ -341,6 +348,7 @@ impl<'g> Tracer<'g> {
             "requested" => &self.dc_bufs.requested,
             "waiters" => &self.dc_bufs.waiters,
             "touched" => &self.dc_bufs.touched,
+            "line_used" => &self.dc_bufs.line_used,
             _ => return None,
         };
         Some(buf.as_entire_binding())
@@ -466,7 +474,7 @@ impl<'g> Tracer<'g> {
         }
         // A batch's rays advance in lockstep: when their blocks outnumber the cache's lines, a
         // block is evicted before all its rays have used it and fetched again. Smaller batches
-        // trade rounds for fetches (docs/ARCHITECTURE.md, The round loop).
+        // trade rounds for fetches (docs/ARCHITECTURE.md, The distributed cache).
         let tiles_per_batch = match self.fit_pixels {
             Some(p) => tiles_per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
             None => tiles_per_batch,
