@@ -6,6 +6,7 @@ pub mod generate;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+pub mod stream;
 mod strict;
 
 use crate::error::{Error, Result};
@@ -527,6 +528,42 @@ impl Bounds {
     }
 }
 
+/// A mesh entry's `scale`, then `translate`, applied to its triangles in f64.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Placement {
+    scale: f64,
+    translate: [f64; 3],
+}
+
+impl Placement {
+    pub(crate) fn of(spec: &MeshSpec) -> Placement {
+        Placement {
+            scale: spec.scale.unwrap_or(1.0),
+            translate: spec.translate.unwrap_or([0.0; 3]),
+        }
+    }
+
+    /// Triangle `i` of the mesh from `origin`, placed; an error if a coordinate is then not
+    /// finite.
+    pub(crate) fn triangle(
+        &self,
+        tri: [[f32; 3]; 3],
+        origin: &Path,
+        i: u64,
+    ) -> Result<[[f32; 3]; 3]> {
+        let (s, t) = (self.scale, self.translate);
+        let tri = tri.map(|p| std::array::from_fn(|a| (f64::from(p[a]) * s + t[a]) as f32));
+        if !tri.iter().flatten().all(|c| c.is_finite()) {
+            return Err(Error::format(
+                origin,
+                Some(format!("triangle {i}")),
+                "a coordinate is not finite after scale and translate",
+            ));
+        }
+        Ok(tri)
+    }
+}
+
 /// All triangles of a scene, unshared, in primitive-id order (meshes in scene order, faces in file
 /// order), with each mesh's first primitive id and colour.
 #[derive(Clone, Debug, Default)]
@@ -547,24 +584,13 @@ impl Model {
                 "the scene has more than 2^32-1 triangles",
             ));
         }
-        let scale = spec.scale.unwrap_or(1.0);
-        let t = spec.translate.unwrap_or([0.0; 3]);
-        let place = |p: [f32; 3]| -> [f32; 3] {
-            std::array::from_fn(|a| (f64::from(p[a]) * scale + t[a]) as f32)
-        };
+        let place = Placement::of(spec);
         self.mesh_first.push(self.triangles.len() as u32);
         self.colors.push(spec.color.unwrap_or(DEFAULT_COLOR));
         self.triangles.reserve(mesh.triangles.len());
         for i in 0..mesh.triangles.len() {
-            let tri = mesh.corners(i).map(place);
+            let tri = place.triangle(mesh.corners(i), origin, i as u64)?;
             for p in &tri {
-                if !p.iter().all(|c| c.is_finite()) {
-                    return Err(Error::format(
-                        origin,
-                        Some(format!("triangle {i}")),
-                        "a coordinate is not finite after scale and translate",
-                    ));
-                }
                 self.bounds.grow(*p);
             }
             self.triangles.push(tri);
