@@ -386,6 +386,11 @@ impl Scene {
     /// The scene's camera, or a default one: a generator's own view, else a view fitted to the
     /// model's bounds.
     pub fn camera_or_default(&self, model: &Model) -> Camera {
+        self.camera_for(model.bounds)
+    }
+
+    /// The scene's camera, or a default one for a model of `bounds` (see `camera_or_default`).
+    pub fn camera_for(&self, bounds: Bounds) -> Camera {
         if let Some(c) = self.camera {
             return c;
         }
@@ -402,7 +407,7 @@ impl Scene {
                 view_angle: v.view_angle,
             };
         }
-        fitted_camera(model.bounds)
+        fitted_camera(bounds)
     }
 }
 

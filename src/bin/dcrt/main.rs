@@ -64,6 +64,13 @@ struct PrepareArgs {
     bvh_preset: Preset,
     #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
     block_size: u32,
+    /// Memory the build may use, in binary units (4GiB, 512MiB); a model whose build in memory
+    /// needs more is built out of core, in parts that fit. Default: half the memory available.
+    #[arg(long)]
+    memory: Option<String>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 #[derive(Args, Clone)]
