@@ -5,12 +5,13 @@ use crate::error::{Error, Result};
 use crate::render::memory;
 
 /// Peak bytes per triangle of the in-memory build, which holds the triangles, their boxes,
-/// obvhs's BVH2, the layout and the packed blocks at once. Measured: see the README
-/// (Out-of-core prepare).
+/// obvhs's BVH2, the layout and the packed blocks at once: 275 measured (peak RSS of rm at 10M
+/// triangles, 2.74 GB), with a margin.
 pub const IN_CORE_BYTES_PER_TRIANGLE: u64 = 300;
-/// Peak bytes per triangle of a part's build: its triangles, their boxes, the BVH2 and the
-/// layout (no packed blocks: they are written as they are made).
-pub const PART_BYTES_PER_TRIANGLE: u64 = 220;
+/// Peak bytes per triangle of a part's build: its triangles, their boxes, obvhs's BVH2 and the
+/// layout (the blocks are written as they are made): 265 measured (a part of 4.2M rm triangles
+/// raised the peak RSS to 1.22 GB), with a margin for the heap's leftovers between parts.
+pub const PART_BYTES_PER_TRIANGLE: u64 = 300;
 /// What the process holds besides the model: the program, threads, I/O buffers, the partition's
 /// histogram.
 pub const FIXED_BYTES: u64 = 12 << 20;
@@ -106,6 +107,6 @@ mod tests {
     fn parts_are_smaller_than_the_budget() {
         let b = Budget { bytes: 1 << 30 };
         assert!(b.part_triangles() * PART_BYTES_PER_TRIANGLE < b.bytes);
-        assert!(b.in_core_triangles() < b.part_triangles());
+        assert!(b.in_core_triangles() <= b.part_triangles());
     }
 }

@@ -53,6 +53,9 @@ pub struct Report {
     /// The parts built out of core; `None` when the model was built in memory.
     pub parts: Option<usize>,
     pub seconds: f64,
+    /// Seconds per phase: reading the input, then (out of core) partitioning, building the
+    /// parts and writing the blocks, or (in memory) building and writing.
+    pub phases: Vec<(&'static str, f64)>,
 }
 
 impl Report {
@@ -81,6 +84,7 @@ pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
     };
     let streamed = scene.stream(&mut intake)?;
     bar.finish_and_clear();
+    let read = t.elapsed().as_secs_f64();
     let Intake {
         held,
         mesh_first,
@@ -97,7 +101,7 @@ pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
             colors,
             bounds: streamed.bounds,
         };
-        return in_core(scene, model, output, o, t);
+        return in_core(scene, model, output, o, t, read);
     };
     let (path, written) = spill.finish()?;
     debug_assert_eq!(written, count);
@@ -113,11 +117,18 @@ pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
         colors,
         bounds: streamed.bounds,
     };
-    out_of_core(scene, input, &scratch, output, o, t)
+    out_of_core(scene, input, &scratch, output, o, t, read)
 }
 
 /// The whole model in memory: the same build and file as a render of the scene makes.
-fn in_core(scene: &Scene, model: Model, output: &Path, o: &Options, t: Instant) -> Result<Report> {
+fn in_core(
+    scene: &Scene,
+    model: Model,
+    output: &Path,
+    o: &Options,
+    t: Instant,
+    read: f64,
+) -> Result<Report> {
     let bar = o.progress.counter("building in memory");
     bar.tick();
     let p = Prepared::from_model(model, o.preset, o.format, 0.0)?;
@@ -133,6 +144,10 @@ fn in_core(scene: &Scene, model: Model, output: &Path, o: &Options, t: Instant) 
         depth: p.bvh.depth,
         parts: None,
         seconds: t.elapsed().as_secs_f64(),
+        phases: vec![
+            ("read", read),
+            ("build and write", t.elapsed().as_secs_f64() - read),
+        ],
     })
 }
 
@@ -200,7 +215,13 @@ fn out_of_core(
     output: &Path,
     o: &Options,
     t: Instant,
+    read: f64,
 ) -> Result<Report> {
+    let mut phases = vec![("read", read)];
+    let mark = |name, phases: &mut Vec<(&'static str, f64)>| {
+        let done: f64 = phases.iter().map(|p| p.1).sum();
+        phases.push((name, t.elapsed().as_secs_f64() - done));
+    };
     let count = match &input.spill {
         Source::Spill { count, .. } => *count,
         Source::Part(p) => p.count,
@@ -214,6 +235,7 @@ fn out_of_core(
     if let Source::Spill { path, .. } = &input.spill {
         std::fs::remove_file(path).map_err(|e| Error::io(path, e))?;
     }
+    mark("partition", &mut phases);
     let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds).collect();
     let top = Top::new(&boxes);
     let parts: Vec<Part> = top.order.iter().map(|&i| parts[i].clone()).collect();
@@ -250,6 +272,7 @@ fn out_of_core(
     bar.finish_and_clear();
     let (nodes_path, _) = nodes.finish()?;
     let (order_path, _) = order.finish()?;
+    mark("build parts", &mut phases);
     let joined = top.join(&shapes);
     if joined.nodes >= u64::from(u32::MAX) {
         return Err(Error::Invalid(format!(
@@ -348,6 +371,7 @@ fn out_of_core(
         out.finish()
     })?;
     bar.finish_and_clear();
+    mark("write", &mut phases);
     Ok(Report {
         triangles: count,
         node_blocks,
@@ -356,6 +380,7 @@ fn out_of_core(
         depth: joined.depth,
         parts: Some(parts.len()),
         seconds: t.elapsed().as_secs_f64(),
+        phases,
     })
 }
 

@@ -47,5 +47,15 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
         r.seconds,
         a.output.display()
     );
+    let phases: Vec<String> = r
+        .phases
+        .iter()
+        .map(|(name, s)| format!("{name} {s:.1} s"))
+        .collect();
+    eprintln!(
+        "  {}; {:.2} M triangles/s",
+        phases.join(", "),
+        r.triangles as f64 / r.seconds / 1e6
+    );
     Ok(())
 }

@@ -11,6 +11,10 @@ use std::sync::{Condvar, Mutex};
 
 /// Marks a vertex index that belongs to the next chunk's first plane.
 pub(super) const TAG: u32 = 1 << 31;
+/// Bytes per triangle of a finished chunk: 12 of indices, about 6 of positions, and its piece.
+const CHUNK_BYTES_PER_TRIANGLE: f64 = 20.0;
+/// Finished chunks held at most, in bytes (besides each worker's own).
+const IN_FLIGHT_BYTES: usize = 256 << 20;
 
 /// A worker's buffers: two planes, the layer's crossing-edge indices (+x, +x+y, +x+z, +x+y+z)
 /// and bit masks of the valid nodes / cells in a row.
@@ -198,12 +202,18 @@ fn for_each_chunk(
     field: &impl ColumnField,
     grid: &Grid,
     chunks: usize,
+    expected: f64,
     take: &mut dyn FnMut(usize, ChunkOut) -> Result<()>,
 ) -> Result<()> {
     let ranges = ranges(grid, chunks);
-    let workers = rayon::current_num_threads().clamp(1, ranges.len());
-    // Chunks that may be started beyond the one `take` waits for.
-    let window = 2 * workers;
+    // Chunks that may be started beyond the one `take` waits for: two per worker, but no more
+    // than `IN_FLIGHT_BYTES` of finished chunks, so that many cores do not hold many chunks of a
+    // huge model.
+    let chunk_bytes = (expected.max(0.0) / ranges.len() as f64 * CHUNK_BYTES_PER_TRIANGLE) as usize;
+    let window = (2 * rayon::current_num_threads())
+        .min((IN_FLIGHT_BYTES / chunk_bytes.max(1)).max(2))
+        .max(1);
+    let workers = window.clamp(1, ranges.len());
     let shared = (
         Mutex::new(Progress {
             claimed: 0,
@@ -277,7 +287,7 @@ pub(super) fn extract(field: &impl ColumnField, grid: &Grid, chunks: usize, expe
         seam: 0,
     };
     let mut taken = 0;
-    let done = for_each_chunk(field, grid, chunks, &mut |c, out| {
+    let done = for_each_chunk(field, grid, chunks, expected as f64, &mut |c, out| {
         sink.accept(c, out);
         taken += 1;
         Ok(())
@@ -300,9 +310,12 @@ pub(super) fn stream(
     field: &impl ColumnField,
     grid: &Grid,
     chunks: usize,
+    expected: f64,
     piece: &mut dyn FnMut(&Mesh) -> Result<()>,
 ) -> Result<()> {
-    for_each_chunk(field, grid, chunks, &mut |_, out| piece(&out.piece()))
+    for_each_chunk(field, grid, chunks, expected, &mut |_, out| {
+        piece(&out.piece())
+    })
 }
 
 #[cfg(test)]
@@ -345,7 +358,7 @@ mod tests {
             .map(|i| bits(whole.corners(i)))
             .collect();
         let (mut got, mut pieces) = (Vec::new(), 0);
-        stream(&field, &grid, 9, &mut |m| {
+        stream(&field, &grid, 9, 0.0, &mut |m| {
             m.validate(std::path::Path::new("piece"))?;
             got.extend((0..m.triangle_count()).map(|i| bits(m.corners(i))));
             pieces += 1;
@@ -363,7 +376,7 @@ mod tests {
         let field = MixingLayer::new(11, 3);
         let grid = Grid::new(80, field.z_range());
         let mut seen = 0;
-        let e = stream(&field, &grid, 40, &mut |_| {
+        let e = stream(&field, &grid, 40, 0.0, &mut |_| {
             seen += 1;
             if seen == 3 {
                 return Err(Error::Invalid("disk full".into()));

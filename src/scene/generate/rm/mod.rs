@@ -72,8 +72,8 @@ pub fn rm_pieces(
     seed: u64,
     piece: &mut dyn FnMut(&Mesh) -> Result<()>,
 ) -> Result<()> {
-    let (field, grid, _) = setup(triangles, seed);
-    stream(&field, &grid, chunk_count(&grid), piece)
+    let (field, grid, expected) = setup(triangles, seed);
+    stream(&field, &grid, chunk_count(&grid), expected, piece)
 }
 
 /// The field of `seed` and the grid that gives it about `triangles` triangles, with the count
