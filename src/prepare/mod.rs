@@ -196,6 +196,11 @@ impl Sink for Intake<'_> {
         self.bar.inc(triangles.len() as u64);
         Ok(())
     }
+
+    /// A mesh file's vertices (12 bytes each) may take half the budget.
+    fn vertex_limit(&self) -> u64 {
+        self.budget.bytes.saturating_sub(budget::FIXED_BYTES) / 2 / 12
+    }
 }
 
 /// The spilled model: its triangles in input order, the bounds of their centres, the mesh table

@@ -490,6 +490,25 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
     }
 }
 
+/// Reads an OBJ or PLY file in pieces (`obj::stream_obj`, `ply::stream_ply`), keeping at most
+/// `max_vertices` vertices.
+pub fn stream_mesh_file(path: &Path, max_vertices: u64, piece: &mut mesh::Piece) -> Result<()> {
+    check_regular(path, "mesh")?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => obj::stream_obj(path, max_vertices, piece),
+        Some("ply") => ply::stream_ply(path, max_vertices, piece),
+        _ => Err(Error::format(
+            path,
+            None,
+            "unknown mesh format: the file name must end in .obj or .ply",
+        )),
+    }
+}
+
 /// Axis-aligned bounds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {

@@ -4,7 +4,6 @@
 //! (docs/ARCHITECTURE.md, Out-of-core prepare).
 
 use super::generate::Generator;
-use super::mesh::Mesh;
 use super::{Bounds, DEFAULT_COLOR, DEFAULT_GENERATOR_TRIANGLES, Model, Placement, Scene};
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -18,6 +17,11 @@ pub trait Sink {
     fn mesh(&mut self, color: [f32; 3]) -> Result<()>;
     /// The next triangles, placed and finite.
     fn triangles(&mut self, triangles: &[[[f32; 3]; 3]]) -> Result<()>;
+    /// The most vertices a mesh file may have: its vertices are all held while its faces are
+    /// read.
+    fn vertex_limit(&self) -> u64 {
+        u64::MAX
+    }
 }
 
 /// A model in memory is the simplest sink: `Scene::stream` into a `Model` gives
@@ -69,8 +73,10 @@ impl Scene {
             let first = out.total;
             let origin = if let Some(file) = &spec.file {
                 let path = dir.join(file);
-                let mesh = super::load_mesh_file(&path)?;
-                out.piece(&mesh, &place, &path, first)?;
+                let limit = out.sink.vertex_limit();
+                super::stream_mesh_file(&path, limit, &mut |positions, triangles| {
+                    out.piece(positions, triangles, &place, &path, first)
+                })?;
                 path
             } else {
                 let name = spec.generator.as_deref().unwrap_or_default();
@@ -80,7 +86,10 @@ impl Scene {
                 g.pieces(
                     spec.triangles.unwrap_or(DEFAULT_GENERATOR_TRIANGLES),
                     spec.seed.unwrap_or(1),
-                    &mut |mesh| out.piece(mesh, &place, &origin, first),
+                    &mut |mesh| {
+                        mesh.validate(&origin)?;
+                        out.piece(&mesh.positions, &mesh.triangles, &place, &origin, first)
+                    },
                 )?;
                 origin
             };
@@ -116,11 +125,18 @@ struct Placed<'s> {
 }
 
 impl Placed<'_> {
-    /// The triangles of `mesh`, a piece of the mesh from `origin` whose triangles are numbered
-    /// from `first` in the scene (errors number them within their mesh).
-    fn piece(&mut self, mesh: &Mesh, place: &Placement, origin: &Path, first: u64) -> Result<()> {
-        mesh.validate(origin)?;
-        for i in 0..mesh.triangles.len() {
+    /// `triangles` (indices into `positions`, checked by whoever made them), a piece of the mesh
+    /// from `origin` whose triangles are numbered from `first` in the scene (errors number them
+    /// within their mesh).
+    fn piece(
+        &mut self,
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+        place: &Placement,
+        origin: &Path,
+        first: u64,
+    ) -> Result<()> {
+        for t in triangles {
             if self.total + 1 >= u64::from(u32::MAX) {
                 return Err(Error::format(
                     origin,
@@ -128,7 +144,8 @@ impl Placed<'_> {
                     "the scene has more than 2^32-1 triangles",
                 ));
             }
-            let tri = place.triangle(mesh.corners(i), origin, self.total - first)?;
+            let corners = t.map(|v| positions[v as usize]);
+            let tri = place.triangle(corners, origin, self.total - first)?;
             for p in &tri {
                 self.bounds.grow(*p);
             }

@@ -282,6 +282,50 @@ fn bad_input_found_late_leaves_nothing() {
         "{err}"
     );
     assert_eq!(listing(&d.0), ["quad.obj", "s.toml"]);
+
+    // A binary PLY read in pieces, its face 150000 of 178802 wrong: most of it has been read
+    // and spilled when the error is found.
+    let n = 300u32;
+    let mut ply = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n\
+         property float y\nproperty float z\nelement face {}\n\
+         property list uchar int vertex_indices\nend_header\n",
+        n * n,
+        2 * (n - 1) * (n - 1)
+    )
+    .into_bytes();
+    for i in 0..n * n {
+        for c in [(i % n) as f32, (i / n) as f32, 0.0] {
+            ply.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    let mut face = 0;
+    for y in 0..n - 1 {
+        for x in 0..n - 1 {
+            let v = y * n + x;
+            for t in [[v, v + 1, v + n + 1], [v, v + n + 1, v + n]] {
+                let t = if face == 150_000 {
+                    [v, v + 1, n * n]
+                } else {
+                    t
+                };
+                ply.push(3);
+                for i in t {
+                    ply.extend_from_slice(&(i as i32).to_le_bytes());
+                }
+                face += 1;
+            }
+        }
+    }
+    d.write("grid.ply", &ply);
+    let s = d.write("p.toml", format!("{CAMERA}[[mesh]]\nfile = \"grid.ply\"\n"));
+    let (good, err) = run(&[&"prepare", &s, &"-o", &dcb, &"--memory", &"16MiB"]);
+    assert!(!good);
+    assert!(
+        err.contains("grid.ply: face 150000") && err.contains("out of range"),
+        "{err}"
+    );
+    assert_eq!(listing(&d.0), ["grid.ply", "p.toml", "quad.obj", "s.toml"]);
 }
 
 #[test]
