@@ -1,9 +1,9 @@
 //! Trees built apart joined under a top tree, in one blocked layout: how the out-of-core build
 //! (docs/ARCHITECTURE.md, Out-of-core prepare) makes one BVH of its parts.
 //!
-//! The top tree is an obvhs BVH2 over the parts' boxes, one part per leaf, collapsed to wide
-//! nodes as the parts' trees are (`layout::collapse`); a part's root is an inner child of a top
-//! node. The joined tree numbers its nodes:
+//! The top tree is the tree of the cuts that made the parts (`Cuts`), one part per leaf,
+//! collapsed to wide nodes as the parts' trees are (`layout::collapse`); a part's root is an
+//! inner child of a top node. The joined tree numbers its nodes:
 //!
 //! 1. the top nodes and the parts' roots, breadth-first, each node's children adjacent;
 //! 2. each part's first treelet but its root, part after part (the treelets are grown to
@@ -16,9 +16,8 @@
 //! them. A single part is its own tree: the numbering is then the part's own.
 
 use super::{INNER, Node, WIDTH, layout::collapse};
-use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb;
-use obvhs::bvh2::Bvh2;
+use obvhs::bvh2::{Bvh2, node::Bvh2Node};
 
 /// A slot of a top node: another top node, or a part's root (by depth-first part number).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -53,30 +52,80 @@ pub struct PartShape {
     pub triangles: u64,
 }
 
+/// How parts were cut: a binary tree whose leaves are parts (their index). The top tree is this
+/// tree, its nodes' boxes the unions of their parts' boxes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Cuts {
+    Part(usize),
+    Two(Box<Cuts>, Box<Cuts>),
+}
+
+impl Cuts {
+    /// The parts, left to right.
+    pub fn parts(&self) -> Vec<usize> {
+        match self {
+            Cuts::Part(p) => vec![*p],
+            Cuts::Two(a, b) => {
+                let mut v = a.parts();
+                v.extend(b.parts());
+                v
+            }
+        }
+    }
+
+    /// The tree as an obvhs BVH2 over parts of bounds `boxes`: a leaf per part.
+    fn bvh2(&self, boxes: &[Aabb]) -> Bvh2 {
+        fn go(c: &Cuts, i: usize, boxes: &[Aabb], b: &mut Bvh2) {
+            b.nodes[i] = match c {
+                Cuts::Part(p) => {
+                    b.primitive_indices.push(*p as u32);
+                    Bvh2Node {
+                        aabb: boxes[*p],
+                        prim_count: 1,
+                        first_index: b.primitive_indices.len() as u32 - 1,
+                        ..Default::default()
+                    }
+                }
+                Cuts::Two(l, r) => {
+                    let k = b.nodes.len();
+                    b.nodes.extend([Bvh2Node::default(); 2]);
+                    go(l, k, boxes, b);
+                    go(r, k + 1, boxes, b);
+                    Bvh2Node {
+                        aabb: b.nodes[k].aabb.union(&b.nodes[k + 1].aabb),
+                        prim_count: 0,
+                        first_index: k as u32,
+                        ..Default::default()
+                    }
+                }
+            };
+        }
+        let mut b = Bvh2::default();
+        b.nodes.push(Bvh2Node::default());
+        go(self, 0, boxes, &mut b);
+        b
+    }
+}
+
 impl Top {
-    /// The top tree over parts whose triangles have the bounds `boxes` (at least one).
-    pub fn new(boxes: &[Aabb]) -> Top {
-        assert!(!boxes.is_empty(), "a top tree needs a part");
-        if boxes.len() == 1 {
+    /// The top tree of parts cut as `cuts`, whose triangles have the bounds `boxes`.
+    pub fn new(cuts: &Cuts, boxes: &[Aabb]) -> Top {
+        assert_eq!(cuts.parts().len(), boxes.len(), "a leaf per part");
+        if let Cuts::Part(_) = cuts {
             return Top {
                 bvh: Bvh2::default(),
                 slots: Vec::new(),
                 child_base: Vec::new(),
                 entries: vec![Slot::Part(0)],
-                order: vec![0],
+                order: cuts.parts(),
                 root_at: vec![0],
                 level: vec![1],
             };
         }
-        let params = BvhBuildParams {
-            max_prims_per_leaf: 1,
-            ..BvhBuildParams::fast_build()
-        };
-        let bvh = obvhs::bvh2::builder::build_bvh2(boxes, params, &mut Default::default());
+        let bvh = cuts.bvh2(boxes);
         // Which input part a BVH2 leaf holds.
         let part_of = |k: usize| {
             let n = &bvh.nodes[k];
-            assert_eq!(n.prim_count, 1, "a top leaf holds one part");
             bvh.primitive_indices[n.first_index as usize] as usize
         };
         // Top nodes, breadth-first; a leaf kid is a part, numbered depth-first below.
@@ -382,7 +431,14 @@ mod tests {
                 b
             })
             .collect();
-        let top = Top::new(&boxes);
+        fn balanced(a: usize, b: usize) -> Cuts {
+            if b - a == 1 {
+                return Cuts::Part(a);
+            }
+            let m = (a + b) / 2;
+            Cuts::Two(Box::new(balanced(a, m)), Box::new(balanced(m, b)))
+        }
+        let top = Top::new(&balanced(0, groups.len()), &boxes);
         let head = top.head(npb);
         let built: Vec<(Vec<u32>, Built)> = top
             .order

@@ -235,14 +235,15 @@ fn out_of_core(
     let npb = format.nodes_per_block() as usize;
     let cap = o.budget.part_triangles();
     let bar = o.progress.bar(2 * count, "partitioning");
-    let parts = partition::split(&input.spill, &input.centres, cap, scratch, &o.budget, &bar)?;
+    let (parts, cuts) =
+        partition::split(&input.spill, &input.centres, cap, scratch, &o.budget, &bar)?;
     bar.finish_and_clear();
     if let Source::Spill { path, .. } = &input.spill {
         std::fs::remove_file(path).map_err(|e| Error::io(path, e))?;
     }
     mark("partition", &mut phases);
     let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds).collect();
-    let top = Top::new(&boxes);
+    let top = Top::new(&cuts, &boxes);
     let parts: Vec<Part> = top.order.iter().map(|&i| parts[i].clone()).collect();
     let head = top.head(npb);
 

@@ -1,30 +1,35 @@
 //! The out-of-core prepare's partition: the spilled triangles cut into parts of at most `cap`
-//! triangles, by the Morton code of their box centres (docs/ARCHITECTURE.md, Out-of-core
-//! prepare).
+//! triangles, and the binary tree of the cuts, which becomes the top of the BVH
+//! (docs/ARCHITECTURE.md, Out-of-core prepare).
 //!
-//! One pass counts the triangles per cell of a 64^3 grid over the centres' bounds, in Morton
-//! order; the cells are grouped top-down by halving the code range (each half a box of the grid)
-//! until a group fits, and neighbouring groups are merged while they fit, so a part is a run of
-//! Morton order of compact boxes. A second pass writes each triangle, with its primitive id, to
-//! its part's file. A single cell holding more than `cap` becomes a part of its own that is cut
-//! again the same way over its own centres; centres that no grid separates (all equal) are cut
-//! by order.
+//! One pass counts the triangles' box centres in the cells of a 64^3 grid over the centres'
+//! bounds. The cells are then cut in two, again and again, to an even depth `d` at which
+//! `2^d` parts hold at most `cap` each: each cut is across the longest side of the occupied
+//! cells, at the cell boundary nearest to the median count. The cuts form a complete binary tree,
+//! so collapsed to 4-wide nodes every top node is full, as the levels of a tree built whole are.
+//! A second pass writes each triangle, with its primitive id, to its part's file. A part that
+//! still holds more than `cap` (a cell too full to cut) is cut again the same way over its own
+//! centres, its tree in its place; centres no grid separates (all equal) are cut by order.
 
 use super::budget::Budget;
 use super::spill::{Reader, Record, Triangle, Writer};
+pub use crate::bvh::join::Cuts;
 use crate::error::Result;
 use crate::output::Scratch;
 use indicatif::ProgressBar;
 use obvhs::aabb::Aabb;
 use std::path::PathBuf;
 
-/// Grid cells per axis, as Morton bits.
-const BITS: u32 = 6;
-const CELLS: usize = 1 << (3 * BITS);
+/// Grid cells per axis.
+const GRID: usize = 64;
+const CELLS: usize = GRID * GRID * GRID;
 /// Part files written at once; more parts are written in several passes.
 const MAX_OPEN: usize = 256;
-/// Refinements of a cell before its triangles are cut by order.
-const MAX_DEPTH: u32 = 6;
+/// Cuts of a part over its own centres before its triangles are cut by order.
+const MAX_DEPTH: u32 = 4;
+/// Parts are planned to this share of `cap`: cuts fall on cell boundaries, so halves are not
+/// exact.
+const SLACK: f64 = 0.85;
 
 /// Triangles in a temporary file: the spill (36-byte triangles whose index is their id) or a
 /// part (`Record`s).
@@ -95,6 +100,7 @@ fn point_box(p: [f32; 3]) -> Aabb {
 /// The grid over a set of centres.
 struct Grid {
     lo: [f32; 3],
+    /// Cells per unit length on each axis (0 for an axis the centres do not spread along).
     scale: [f32; 3],
 }
 
@@ -106,7 +112,7 @@ impl Grid {
             scale: std::array::from_fn(|a| {
                 let e = hi[a] - lo[a];
                 if e > 0.0 && e.is_finite() {
-                    (1u32 << BITS) as f32 / e
+                    GRID as f32 / e
                 } else {
                     0.0
                 }
@@ -114,66 +120,153 @@ impl Grid {
         }
     }
 
-    /// The Morton code of the cell of `t`'s centre.
+    /// The cell of `t`'s centre.
     fn cell(&self, t: &Triangle) -> usize {
         let c = centre(t);
-        let max = (1u32 << BITS) - 1;
-        let q: [u32; 3] =
-            std::array::from_fn(|a| (((c[a] - self.lo[a]) * self.scale[a]) as u32).min(max));
-        let mut code = 0usize;
-        for b in 0..BITS {
-            for (a, q) in q.iter().enumerate() {
-                code |= (((q >> b) & 1) as usize) << (3 * b + a as u32);
+        let q: [usize; 3] =
+            std::array::from_fn(|a| (((c[a] - self.lo[a]) * self.scale[a]) as usize).min(GRID - 1));
+        q[0] + GRID * (q[1] + GRID * q[2])
+    }
+
+    /// A cell's side on axis `a`, in model units (0 where the centres do not spread).
+    fn side(&self, a: usize) -> f32 {
+        if self.scale[a] > 0.0 {
+            1.0 / self.scale[a]
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A box of cells, `lo..hi` per axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Region {
+    lo: [usize; 3],
+    hi: [usize; 3],
+}
+
+impl Region {
+    fn cells(&self) -> impl Iterator<Item = usize> + '_ {
+        (self.lo[2]..self.hi[2]).flat_map(move |z| {
+            (self.lo[1]..self.hi[1])
+                .flat_map(move |y| (self.lo[0]..self.hi[0]).map(move |x| x + GRID * (y + GRID * z)))
+        })
+    }
+
+    fn coord(cell: usize) -> [usize; 3] {
+        [cell % GRID, (cell / GRID) % GRID, cell / (GRID * GRID)]
+    }
+
+    /// The smallest region around the region's occupied cells, and their count.
+    fn occupied(&self, hist: &[u32]) -> (Region, u64) {
+        let mut r = Region {
+            lo: [GRID; 3],
+            hi: [0; 3],
+        };
+        let mut n = 0u64;
+        for c in self.cells() {
+            if hist[c] > 0 {
+                n += u64::from(hist[c]);
+                let q = Region::coord(c);
+                for a in 0..3 {
+                    r.lo[a] = r.lo[a].min(q[a]);
+                    r.hi[a] = r.hi[a].max(q[a] + 1);
+                }
             }
         }
-        code
+        (r, n)
+    }
+
+    /// The region cut in two across its longest side (in model units) at the cell boundary
+    /// nearest its median count; `None` for a single cell.
+    fn cut(&self, hist: &[u32], grid: &Grid) -> Option<(Region, Region)> {
+        let a = (0..3)
+            .filter(|&a| self.hi[a] - self.lo[a] > 1)
+            .max_by(|&a, &b| {
+                let len = |a: usize| (self.hi[a] - self.lo[a]) as f32 * grid.side(a);
+                len(a).total_cmp(&len(b))
+            })?;
+        let mut slabs = vec![0u64; self.hi[a] - self.lo[a]];
+        for c in self.cells() {
+            slabs[Region::coord(c)[a] - self.lo[a]] += u64::from(hist[c]);
+        }
+        let total: u64 = slabs.iter().sum();
+        // The boundary (1..len) whose left count is nearest half.
+        let mut left = 0u64;
+        let mut best = (u64::MAX, 1);
+        for (s, &n) in slabs.iter().enumerate().take(slabs.len() - 1) {
+            left += n;
+            let off = (2 * left).abs_diff(total);
+            if off < best.0 {
+                best = (off, s + 1);
+            }
+        }
+        let at = self.lo[a] + best.1;
+        let (mut l, mut r) = (*self, *self);
+        l.hi[a] = at;
+        r.lo[a] = at;
+        Some((l, r))
     }
 }
 
-/// Runs of cells that make the parts: `part_of[cell]`, and the count of each part.
-fn plan(hist: &[u32], cap: u64) -> (Vec<u32>, Vec<u64>) {
-    let mut prefix = vec![0u64; hist.len() + 1];
-    for (i, &h) in hist.iter().enumerate() {
-        prefix[i + 1] = prefix[i] + u64::from(h);
-    }
-    let count = |a: usize, b: usize| prefix[b] - prefix[a];
-    // Groups of cells, top-down halving the code range until a range fits.
-    let mut groups: Vec<(usize, usize)> = Vec::new();
-    let mut stack = vec![(0usize, hist.len())];
-    while let Some((a, b)) = stack.pop() {
-        let n = count(a, b);
+/// The cuts of the cells `hist` counts, `depth` levels deep: the regions of the parts, left to
+/// right, and the tree. A region that cannot be cut (a single cell) stops early; an empty half
+/// is dropped.
+fn plan(hist: &[u32], grid: &Grid, depth: u32) -> (Vec<Region>, Cuts) {
+    fn go(
+        region: Region,
+        hist: &[u32],
+        grid: &Grid,
+        depth: u32,
+        out: &mut Vec<Region>,
+    ) -> Option<Cuts> {
+        let (region, n) = region.occupied(hist);
         if n == 0 {
-            continue;
+            return None;
         }
-        if n <= cap || b - a == 1 {
-            groups.push((a, b));
+        let halves = if depth > 0 {
+            region.cut(hist, grid)
         } else {
-            let mid = (a + b) / 2;
-            stack.push((mid, b));
-            stack.push((a, mid));
+            None
+        };
+        let Some((l, r)) = halves else {
+            out.push(region);
+            return Some(Cuts::Part(out.len() - 1));
+        };
+        match (
+            go(l, hist, grid, depth - 1, out),
+            go(r, hist, grid, depth - 1, out),
+        ) {
+            (Some(a), Some(b)) => Some(Cuts::Two(Box::new(a), Box::new(b))),
+            (Some(a), None) | (None, Some(a)) => Some(a),
+            (None, None) => None,
         }
     }
-    // Neighbouring groups merged while they fit.
-    let mut part_of = vec![u32::MAX; hist.len()];
-    let mut counts: Vec<u64> = Vec::new();
-    let mut open = 0u64;
-    for (a, b) in groups {
-        let n = count(a, b);
-        if counts.is_empty() || open + n > cap {
-            counts.push(0);
-            open = 0;
-        }
-        open += n;
-        let p = counts.len() - 1;
-        counts[p] += n;
-        let p = p as u32;
-        part_of[a..b].fill(p);
+    let all = Region {
+        lo: [0; 3],
+        hi: [GRID; 3],
+    };
+    let mut regions = Vec::new();
+    let cuts = go(all, hist, grid, depth, &mut regions).unwrap_or(Cuts::Part(0));
+    if regions.is_empty() {
+        regions.push(all);
     }
-    (part_of, counts)
+    (regions, cuts)
 }
 
-/// Cuts `source` into parts of at most `cap` triangles, in files of `scratch`. `bar` counts the
-/// triangles read.
+/// The even depth (a whole number of 4-wide levels) at which `count` triangles cut in halves
+/// make parts of at most `cap` (with `SLACK`).
+fn depth_for(count: u64, cap: u64) -> u32 {
+    let target = (cap as f64 * SLACK).max(1.0);
+    let mut d = 0;
+    while count as f64 / f64::powi(2.0, d as i32) > target && d < 40 {
+        d += 2;
+    }
+    d
+}
+
+/// Cuts `source` into parts of at most `cap` triangles, in files of `scratch`: the parts and
+/// the tree of the cuts over them. `bar` counts the triangles read.
 pub fn split(
     source: &Source,
     centres: &Aabb,
@@ -181,75 +274,101 @@ pub fn split(
     scratch: &Scratch,
     budget: &Budget,
     bar: &ProgressBar,
-) -> Result<Vec<Part>> {
-    split_at(source, centres, cap, scratch, budget, bar, 0)
+) -> Result<(Vec<Part>, Cuts)> {
+    let mut parts = Vec::new();
+    let cuts = split_into(source, centres, cap, scratch, budget, bar, 0, &mut parts)?;
+    Ok((parts, cuts))
 }
 
 #[allow(clippy::too_many_arguments)]
-fn split_at(
+fn split_into(
     source: &Source,
     centres: &Aabb,
     cap: u64,
     scratch: &Scratch,
     budget: &Budget,
     bar: &ProgressBar,
-    depth: u32,
-) -> Result<Vec<Part>> {
+    level: u32,
+    out: &mut Vec<Part>,
+) -> Result<Cuts> {
     let grid = Grid::over(centres);
     let separable = grid.scale.iter().any(|&s| s > 0.0);
-    let (part_of, counts) = if separable && depth < MAX_DEPTH {
+    let count = source.count();
+    let (part_of, cuts, pieces) = if separable && level < MAX_DEPTH {
         let mut hist = vec![0u32; CELLS];
         source.each(&mut |t, _| {
             hist[grid.cell(t)] += 1;
             Ok(())
         })?;
-        bar.inc(source.count());
-        plan(&hist, cap)
+        bar.inc(count);
+        let (regions, cuts) = plan(&hist, &grid, depth_for(count, cap));
+        let mut part_of = vec![u32::MAX; CELLS];
+        for (p, r) in regions.iter().enumerate() {
+            for c in r.cells() {
+                part_of[c] = p as u32;
+            }
+        }
+        (part_of, cuts, regions.len())
     } else {
-        // No grid separates these centres: cut by order (`scatter` numbers them itself).
-        (Vec::new(), vec![cap; source.count().div_ceil(cap) as usize])
+        // No grid separates these centres: cut by order, the pieces under a balanced tree.
+        let pieces = count.div_ceil(cap).max(1) as usize;
+        fn balanced(a: usize, b: usize) -> Cuts {
+            if b - a == 1 {
+                return Cuts::Part(a);
+            }
+            let m = (a + b) / 2;
+            Cuts::Two(Box::new(balanced(a, m)), Box::new(balanced(m, b)))
+        }
+        (Vec::new(), balanced(0, pieces), pieces)
     };
-    let parts = scatter(source, &grid, &part_of, &counts, cap, scratch, budget)?;
-    bar.inc(source.count());
-    let mut out = Vec::with_capacity(parts.len());
+    let parts = scatter(source, &grid, &part_of, pieces, cap, scratch, budget)?;
+    bar.inc(count);
+    // Parts still over the cap are cut again; every part gets its place in `out`.
+    let mut sub = Vec::with_capacity(parts.len());
     for p in parts {
         if p.count > cap {
             let centres = p.centres;
-            let sub = split_at(
-                &Source::Part(p.clone()),
-                &centres,
-                cap,
-                scratch,
-                budget,
-                bar,
-                depth + 1,
-            )?;
+            let source = Source::Part(p.clone());
+            let c = split_into(&source, &centres, cap, scratch, budget, bar, level + 1, out)?;
             std::fs::remove_file(&p.path).map_err(|e| crate::Error::io(&p.path, e))?;
-            out.extend(sub);
+            sub.push(c);
         } else {
             out.push(p);
+            sub.push(Cuts::Part(out.len() - 1));
         }
     }
-    Ok(out)
+    let mut cuts = cuts;
+    graft(&mut cuts, &sub);
+    Ok(cuts)
+}
+
+/// Replaces each leaf `Part(i)` of `cuts` by `sub[i]`.
+fn graft(cuts: &mut Cuts, sub: &[Cuts]) {
+    match cuts {
+        Cuts::Part(i) => *cuts = sub[*i].clone(),
+        Cuts::Two(a, b) => {
+            graft(a, sub);
+            graft(b, sub);
+        }
+    }
 }
 
 /// Writes each triangle of `source` to its part's file: by its cell (`part_of`), or, without a
 /// plan, `cap` at a time in order. At most `MAX_OPEN` files are open: more parts take more
 /// passes.
-#[allow(clippy::too_many_arguments)]
 fn scatter(
     source: &Source,
     grid: &Grid,
     part_of: &[u32],
-    counts: &[u64],
+    parts: usize,
     cap: u64,
     scratch: &Scratch,
     budget: &Budget,
 ) -> Result<Vec<Part>> {
     static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let mut parts = Vec::with_capacity(counts.len());
-    for first in (0..counts.len()).step_by(MAX_OPEN) {
-        let last = (first + MAX_OPEN).min(counts.len());
+    let mut out = Vec::with_capacity(parts);
+    for first in (0..parts).step_by(MAX_OPEN) {
+        let last = (first + MAX_OPEN).min(parts);
         let buffer = budget.buffer_bytes(last - first);
         let mut writers = Vec::with_capacity(last - first);
         for _ in first..last {
@@ -285,7 +404,7 @@ fn scatter(
         for (mut w, bounds, centres, pending) in writers {
             w.push(&pending)?;
             let (path, count) = w.finish()?;
-            parts.push(Part {
+            out.push(Part {
                 path,
                 count,
                 bounds,
@@ -293,47 +412,72 @@ fn scatter(
             });
         }
     }
-    debug_assert!(
-        parts
-            .iter()
-            .zip(counts)
-            .all(|(p, &c)| p.count == c || part_of.is_empty())
-    );
-    Ok(parts)
+    Ok(out)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn plans_fit_the_cap_and_cover_every_cell() {
-        let mut hist = vec![0u32; CELLS];
-        let mut s = 7u64;
-        for _ in 0..20_000 {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-            hist[(s >> 40) as usize % 5000] += 1;
-        }
-        hist[4000] = 900; // one cell over the cap
-        let (part_of, counts) = plan(&hist, 500);
-        let total: u64 = hist.iter().map(|&h| u64::from(h)).sum();
-        assert_eq!(counts.iter().sum::<u64>(), total);
-        let mut per = vec![0u64; counts.len()];
-        for (c, &h) in hist.iter().enumerate() {
-            if h > 0 {
-                per[part_of[c] as usize] += u64::from(h);
+    fn depth(c: &Cuts) -> (usize, usize) {
+        match c {
+            Cuts::Part(_) => (0, 0),
+            Cuts::Two(a, b) => {
+                let (a, b) = (depth(a), depth(b));
+                (1 + a.0.min(b.0), 1 + a.1.max(b.1))
             }
         }
-        assert_eq!(per, counts);
-        let over: Vec<_> = counts.iter().filter(|&&c| c > 500).collect();
-        assert_eq!(over, [&u64::from(hist[4000])], "only the big cell is over");
-        // Parts are runs of cells in Morton order.
-        let used: Vec<u32> = (0..CELLS)
-            .filter(|&c| hist[c] > 0)
-            .map(|c| part_of[c])
-            .collect();
-        assert!(used.windows(2).all(|w| w[0] <= w[1]));
-        // Merged while they fit: no two neighbours would fit together.
-        assert!(counts.windows(2).all(|w| w[0] + w[1] > 500));
+    }
+
+    /// A sheet of centres over x and y: cut into a complete tree of the even depth that makes
+    /// the parts fit, the halves near even, every occupied cell in exactly one part.
+    #[test]
+    fn cuts_make_a_complete_tree_of_near_even_parts() {
+        let centres = Aabb {
+            min: glam::Vec3A::new(-1.0, -1.0, -0.1),
+            max: glam::Vec3A::new(1.0, 1.0, 0.1),
+        };
+        let grid = Grid::over(&centres);
+        let mut hist = vec![0u32; CELLS];
+        let mut s = 7u64;
+        let mut total = 0u64;
+        for _ in 0..200_000 {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = |k: u32| ((s >> k) & 0xffff) as f32 / 65536.0;
+            let t = [[-1.0 + 2.0 * u(16), -1.0 + 2.0 * u(32), 0.1 * (u(48) - 0.5)]; 3];
+            hist[grid.cell(&t)] += 1;
+            total += 1;
+        }
+        let cap = 15_000;
+        let d = depth_for(total, cap);
+        assert_eq!(d, 4, "16 parts of 12,500");
+        let (regions, cuts) = plan(&hist, &grid, d);
+        assert_eq!(depth(&cuts), (4, 4), "complete");
+        assert_eq!(cuts.parts(), (0..16).collect::<Vec<_>>());
+        let mut owner = vec![usize::MAX; CELLS];
+        for (p, r) in regions.iter().enumerate() {
+            let n: u64 = r.cells().map(|c| u64::from(hist[c])).sum();
+            assert!(n <= cap && n > 9_000, "part {p}: {n}");
+            for c in r.cells() {
+                assert_eq!(owner[c], usize::MAX, "cell {c} in two parts");
+                owner[c] = p;
+            }
+        }
+        assert!((0..CELLS).all(|c| hist[c] == 0 || owner[c] != usize::MAX));
+        // One full cell cannot be cut: it stays a part (the caller cuts it again).
+        let mut one = vec![0u32; CELLS];
+        one[5] = 1000;
+        let (regions, cuts) = plan(&one, &grid, 4);
+        assert_eq!((regions.len(), cuts), (1, Cuts::Part(0)));
+    }
+
+    #[test]
+    fn depths_are_even_and_enough() {
+        assert_eq!(depth_for(100, 1000), 0);
+        assert_eq!(depth_for(2000, 1000), 2);
+        assert_eq!(depth_for(4000, 1000), 4);
+        assert_eq!(depth_for(300_000_000, 14_000_000), 6);
     }
 }

@@ -263,7 +263,8 @@ impl DcArgs {
 
 #[derive(Args)]
 struct BenchArgs {
-    /// Scene file; without it, a generated scene (--generator, --triangles).
+    /// Scene file, or a prepared block file (.dcb) to trace as it is; without it, a generated
+    /// scene (--generator, --triangles).
     scene: Option<PathBuf>,
     #[arg(long, default_value = "rm")]
     generator: String,
