@@ -167,10 +167,9 @@ impl Region {
         for c in self.cells() {
             if hist[c] > 0 {
                 n += u64::from(hist[c]);
-                let q = Region::coord(c);
-                for a in 0..3 {
-                    r.lo[a] = r.lo[a].min(q[a]);
-                    r.hi[a] = r.hi[a].max(q[a] + 1);
+                for (a, q) in Region::coord(c).into_iter().enumerate() {
+                    r.lo[a] = r.lo[a].min(q);
+                    r.hi[a] = r.hi[a].max(q + 1);
                 }
             }
         }
