@@ -48,3 +48,12 @@ impl Progress {
             .with_message(what.to_string())
     }
 }
+
+/// Prints a line on stderr above `bar` (or plainly when the bar is not drawn).
+pub fn say(bar: &ProgressBar, line: String) {
+    if bar.is_hidden() {
+        eprintln!("{line}");
+    } else {
+        bar.println(line);
+    }
+}

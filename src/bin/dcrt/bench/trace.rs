@@ -10,6 +10,7 @@ use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{Settings, Tracer};
+use dcrt::progress::Progress;
 use dcrt::render::Prepared;
 use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
@@ -126,6 +127,10 @@ pub fn run(
         a.modes.clone()
     };
     let mut peer_ids = None;
+    let bar = Progress { quiet: a.quiet }.bar(
+        (presets.len() * stores.len() * modes.len()) as u64,
+        "bench rows",
+    );
     for preset in presets {
         let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
         let tree = Tree {
@@ -141,6 +146,7 @@ pub fn run(
             let mut tracer = prepared.tracer(gpu, s)?;
             for &mode in &modes {
                 tracer.set_shading(shading_for(mode))?;
+                bar.inc(1);
                 rows.push(measure(
                     a,
                     &mut tracer,
@@ -159,6 +165,7 @@ pub fn run(
             }
         }
     }
+    bar.finish_and_clear();
     let main_row = rows
         .iter()
         .find(|r| {
