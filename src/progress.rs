@@ -3,7 +3,7 @@
 //! command was not given `--quiet`; off a terminal a bar draws nothing (a render then prints its
 //! `--progress-every` lines instead).
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{HumanCount, ProgressBar, ProgressDrawTarget, ProgressState, ProgressStyle};
 use std::io::IsTerminal;
 
 /// How a command shows progress.
@@ -30,9 +30,10 @@ impl Progress {
     /// time left.
     pub fn bar(&self, len: u64, what: &str) -> ProgressBar {
         let style = ProgressStyle::with_template(
-            "{msg:28} [{bar:30}] {human_pos}/{human_len} ({per_sec}, {eta} left)",
+            "{msg:28} [{bar:30}] {human_pos}/{human_len} ({rate}, {eta} left)",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .with_key("rate", rate)
         .progress_chars("=> ");
         ProgressBar::with_draw_target(Some(len), self.target())
             .with_style(style)
@@ -41,12 +42,18 @@ impl Progress {
 
     /// A counter of steps whose total is not known, with the rate.
     pub fn counter(&self, what: &str) -> ProgressBar {
-        let style = ProgressStyle::with_template("{msg:28} {spinner} {human_pos} ({per_sec})")
-            .unwrap_or_else(|_| ProgressStyle::default_spinner());
+        let style = ProgressStyle::with_template("{msg:28} {spinner} {human_pos} ({rate})")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner())
+            .with_key("rate", rate);
         ProgressBar::with_draw_target(None, self.target())
             .with_style(style)
             .with_message(what.to_string())
     }
+}
+
+/// Steps per second, whole.
+fn rate(state: &ProgressState, w: &mut dyn std::fmt::Write) {
+    let _ = write!(w, "{}/s", HumanCount(state.per_sec() as u64));
 }
 
 /// Prints a line on stderr above `bar` (or plainly when the bar is not drawn).
