@@ -30,7 +30,7 @@ use indicatif::ProgressBar;
 use obvhs::aabb::Aabb;
 use partition::{Part, Source};
 use spill::{Record, Triangle, Writer};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// How to prepare.
@@ -50,12 +50,21 @@ pub struct Report {
     pub tri_blocks: u32,
     pub block_bytes: u32,
     pub depth: u32,
-    /// The parts built out of core; `None` when the model was built in memory.
-    pub parts: Option<usize>,
+    /// Out of core: the parts, the largest's triangles and the most a part may have; `None`
+    /// when the model was built in memory.
+    pub parts: Option<Parts>,
     pub seconds: f64,
     /// Seconds per phase: reading the input, then (out of core) partitioning, building the
     /// parts and writing the blocks, or (in memory) building and writing.
     pub phases: Vec<(&'static str, f64)>,
+}
+
+/// How a model was cut out of core.
+#[derive(Clone, Copy, Debug)]
+pub struct Parts {
+    pub count: usize,
+    pub largest: u64,
+    pub capacity: u64,
 }
 
 impl Report {
@@ -111,7 +120,8 @@ pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
         ));
     };
     let input = Input {
-        spill: Source::Spill { path, count },
+        spill: path,
+        count,
         centres,
         mesh_first,
         colors,
@@ -206,7 +216,8 @@ impl Sink for Intake<'_> {
 /// The spilled model: its triangles in input order, the bounds of their centres, the mesh table
 /// and the model's bounds.
 struct Input {
-    spill: Source,
+    spill: PathBuf,
+    count: u64,
     centres: Aabb,
     mesh_first: Vec<u32>,
     colors: Vec<[f32; 3]>,
@@ -227,20 +238,18 @@ fn out_of_core(
         let done: f64 = phases.iter().map(|p| p.1).sum();
         phases.push((name, t.elapsed().as_secs_f64() - done));
     };
-    let count = match &input.spill {
-        Source::Spill { count, .. } => *count,
-        Source::Part(p) => p.count,
-    };
+    let count = input.count;
     let format = o.format;
     let npb = format.nodes_per_block() as usize;
     let cap = o.budget.part_triangles();
     let bar = o.progress.bar(2 * count, "partitioning");
-    let (parts, cuts) =
-        partition::split(&input.spill, &input.centres, cap, scratch, &o.budget, &bar)?;
+    let spill = Source::Spill {
+        path: input.spill.clone(),
+        count,
+    };
+    let (parts, cuts) = partition::split(&spill, &input.centres, cap, scratch, &o.budget, &bar)?;
     bar.finish_and_clear();
-    if let Source::Spill { path, .. } = &input.spill {
-        std::fs::remove_file(path).map_err(|e| Error::io(path, e))?;
-    }
+    std::fs::remove_file(&input.spill).map_err(|e| Error::io(&input.spill, e))?;
     mark("partition", &mut phases);
     let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds).collect();
     let top = Top::new(&cuts, &boxes);
@@ -384,7 +393,11 @@ fn out_of_core(
         tri_blocks,
         block_bytes: format.block_bytes,
         depth: joined.depth,
-        parts: Some(parts.len()),
+        parts: Some(Parts {
+            count: parts.len(),
+            largest: shapes.iter().map(|s| s.triangles).max().unwrap_or(0),
+            capacity: cap,
+        }),
         seconds: t.elapsed().as_secs_f64(),
         phases,
     })

@@ -274,71 +274,144 @@ pub fn split(
     budget: &Budget,
     bar: &ProgressBar,
 ) -> Result<(Vec<Part>, Cuts)> {
+    let cutter = Cutter {
+        cap,
+        scratch,
+        budget,
+        bar,
+    };
     let mut parts = Vec::new();
-    let cuts = split_into(source, centres, cap, scratch, budget, bar, 0, &mut parts)?;
+    let cuts = cutter.split(source, centres, 0, &mut parts)?;
     Ok((parts, cuts))
 }
 
-#[allow(clippy::too_many_arguments)]
-fn split_into(
-    source: &Source,
-    centres: &Aabb,
+/// What every cut works with.
+struct Cutter<'a> {
     cap: u64,
-    scratch: &Scratch,
-    budget: &Budget,
-    bar: &ProgressBar,
-    level: u32,
-    out: &mut Vec<Part>,
-) -> Result<Cuts> {
-    let grid = Grid::over(centres);
-    let separable = grid.scale.iter().any(|&s| s > 0.0);
-    let count = source.count();
-    let (part_of, cuts, pieces) = if separable && level < MAX_DEPTH {
-        let mut hist = vec![0u32; CELLS];
-        source.each(&mut |t, _| {
-            hist[grid.cell(t)] += 1;
-            Ok(())
-        })?;
-        bar.inc(count);
-        let (regions, cuts) = plan(&hist, &grid, depth_for(count, cap));
-        let mut part_of = vec![u32::MAX; CELLS];
-        for (p, r) in regions.iter().enumerate() {
-            for c in r.cells() {
-                part_of[c] = p as u32;
+    scratch: &'a Scratch,
+    budget: &'a Budget,
+    bar: &'a ProgressBar,
+}
+
+impl Cutter<'_> {
+    /// Cuts `source` (whose centres have the bounds `centres`; cut `level` times before) into
+    /// parts, appended to `out`; the tree of the cuts over their indices in `out`.
+    fn split(
+        &self,
+        source: &Source,
+        centres: &Aabb,
+        level: u32,
+        out: &mut Vec<Part>,
+    ) -> Result<Cuts> {
+        let grid = Grid::over(centres);
+        let separable = grid.scale.iter().any(|&s| s > 0.0);
+        let count = source.count();
+        let (part_of, cuts, pieces) = if separable && level < MAX_DEPTH {
+            let mut hist = vec![0u32; CELLS];
+            source.each(&mut |t, _| {
+                hist[grid.cell(t)] += 1;
+                Ok(())
+            })?;
+            self.bar.inc(count);
+            let (regions, cuts) = plan(&hist, &grid, depth_for(count, self.cap));
+            let mut part_of = vec![u32::MAX; CELLS];
+            for (p, r) in regions.iter().enumerate() {
+                for c in r.cells() {
+                    part_of[c] = p as u32;
+                }
             }
-        }
-        (part_of, cuts, regions.len())
-    } else {
-        // No grid separates these centres: cut by order, the pieces under a balanced tree.
-        let pieces = count.div_ceil(cap).max(1) as usize;
-        fn balanced(a: usize, b: usize) -> Cuts {
-            if b - a == 1 {
-                return Cuts::Part(a);
-            }
-            let m = (a + b) / 2;
-            Cuts::Two(Box::new(balanced(a, m)), Box::new(balanced(m, b)))
-        }
-        (Vec::new(), balanced(0, pieces), pieces)
-    };
-    let parts = scatter(source, &grid, &part_of, pieces, cap, scratch, budget)?;
-    bar.inc(count);
-    // Parts still over the cap are cut again; every part gets its place in `out`.
-    let mut sub = Vec::with_capacity(parts.len());
-    for p in parts {
-        if p.count > cap {
-            let centres = p.centres;
-            let source = Source::Part(p.clone());
-            let c = split_into(&source, &centres, cap, scratch, budget, bar, level + 1, out)?;
-            std::fs::remove_file(&p.path).map_err(|e| crate::Error::io(&p.path, e))?;
-            sub.push(c);
+            (part_of, cuts, regions.len())
         } else {
-            out.push(p);
-            sub.push(Cuts::Part(out.len() - 1));
+            // No grid separates these centres: cut by order, the pieces under a balanced tree.
+            let pieces = count.div_ceil(self.cap).max(1) as usize;
+            fn balanced(a: usize, b: usize) -> Cuts {
+                if b - a == 1 {
+                    return Cuts::Part(a);
+                }
+                let m = (a + b) / 2;
+                Cuts::Two(Box::new(balanced(a, m)), Box::new(balanced(m, b)))
+            }
+            (Vec::new(), balanced(0, pieces), pieces)
+        };
+        let parts = self.scatter(source, &grid, &part_of, pieces)?;
+        self.bar.inc(count);
+        // Parts still over the cap are cut again; every part gets its place in `out`.
+        let mut sub = Vec::with_capacity(parts.len());
+        for p in parts {
+            if p.count > self.cap {
+                let centres = p.centres;
+                let c = self.split(&Source::Part(p.clone()), &centres, level + 1, out)?;
+                std::fs::remove_file(&p.path).map_err(|e| crate::Error::io(&p.path, e))?;
+                sub.push(c);
+            } else {
+                out.push(p);
+                sub.push(Cuts::Part(out.len() - 1));
+            }
         }
+        let mut cuts = cuts;
+        graft(&mut cuts, &sub);
+        Ok(cuts)
     }
-    let mut cuts = cuts;
-    graft(&mut cuts, &sub);
-    Ok(cuts)
+
+    /// Writes each triangle of `source` to its part's file: by its cell (`part_of`), or, without
+    /// a plan, `cap` at a time in order. At most `MAX_OPEN` files are open: more parts take more
+    /// passes.
+    fn scatter(
+        &self,
+        source: &Source,
+        grid: &Grid,
+        part_of: &[u32],
+        parts: usize,
+    ) -> Result<Vec<Part>> {
+        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let mut out = Vec::with_capacity(parts);
+        for first in (0..parts).step_by(MAX_OPEN) {
+            let last = (first + MAX_OPEN).min(parts);
+            let buffer = self.budget.buffer_bytes(last - first);
+            let mut writers = Vec::with_capacity(last - first);
+            for _ in first..last {
+                let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                writers.push((
+                    Writer::<Record>::create(&self.scratch.path(&format!("part-{n}")), buffer)?,
+                    Aabb::INVALID,
+                    Aabb::INVALID,
+                    Vec::<Record>::with_capacity(64),
+                ));
+            }
+            let mut index = 0u64;
+            source.each(&mut |t, id| {
+                let p = if part_of.is_empty() {
+                    (index / self.cap) as usize
+                } else {
+                    part_of[grid.cell(t)] as usize
+                };
+                index += 1;
+                if !(first..last).contains(&p) {
+                    return Ok(());
+                }
+                let (w, bounds, centres, pending) = &mut writers[p - first];
+                *bounds = bounds.union(&crate::bvh::triangle_box(t));
+                *centres = centres.union(&point_box(centre(t)));
+                pending.push(Record { tri: *t, id });
+                if pending.len() == pending.capacity() {
+                    w.push(pending)?;
+                    pending.clear();
+                }
+                Ok(())
+            })?;
+            for (mut w, bounds, centres, pending) in writers {
+                w.push(&pending)?;
+                let (path, count) = w.finish()?;
+                out.push(Part {
+                    path,
+                    count,
+                    bounds,
+                    centres,
+                });
+            }
+        }
+        Ok(out)
+    }
 }
 
 /// Replaces each leaf `Part(i)` of `cuts` by `sub[i]`.
@@ -350,68 +423,6 @@ fn graft(cuts: &mut Cuts, sub: &[Cuts]) {
             graft(b, sub);
         }
     }
-}
-
-/// Writes each triangle of `source` to its part's file: by its cell (`part_of`), or, without a
-/// plan, `cap` at a time in order. At most `MAX_OPEN` files are open: more parts take more
-/// passes.
-fn scatter(
-    source: &Source,
-    grid: &Grid,
-    part_of: &[u32],
-    parts: usize,
-    cap: u64,
-    scratch: &Scratch,
-    budget: &Budget,
-) -> Result<Vec<Part>> {
-    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let mut out = Vec::with_capacity(parts);
-    for first in (0..parts).step_by(MAX_OPEN) {
-        let last = (first + MAX_OPEN).min(parts);
-        let buffer = budget.buffer_bytes(last - first);
-        let mut writers = Vec::with_capacity(last - first);
-        for _ in first..last {
-            let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            writers.push((
-                Writer::<Record>::create(&scratch.path(&format!("part-{n}")), buffer)?,
-                Aabb::INVALID,
-                Aabb::INVALID,
-                Vec::<Record>::with_capacity(64),
-            ));
-        }
-        let mut index = 0u64;
-        source.each(&mut |t, id| {
-            let p = if part_of.is_empty() {
-                (index / cap) as usize
-            } else {
-                part_of[grid.cell(t)] as usize
-            };
-            index += 1;
-            if !(first..last).contains(&p) {
-                return Ok(());
-            }
-            let (w, bounds, centres, pending) = &mut writers[p - first];
-            *bounds = bounds.union(&crate::bvh::triangle_box(t));
-            *centres = centres.union(&point_box(centre(t)));
-            pending.push(Record { tri: *t, id });
-            if pending.len() == pending.capacity() {
-                w.push(pending)?;
-                pending.clear();
-            }
-            Ok(())
-        })?;
-        for (mut w, bounds, centres, pending) in writers {
-            w.push(&pending)?;
-            let (path, count) = w.finish()?;
-            out.push(Part {
-                path,
-                count,
-                bounds,
-                centres,
-            });
-        }
-    }
-    Ok(out)
 }
 
 #[cfg(test)]

@@ -340,14 +340,7 @@ impl Scene {
 
     /// Loads every mesh and flattens them into one triangle list in primitive-id order.
     pub fn load_model(&self) -> Result<Model> {
-        if self.model.is_some() {
-            return Err(Error::format(
-                &self.path,
-                None,
-                "names a prepared model; it has no meshes to load",
-            ));
-        }
-        let dir = self.path.parent().unwrap_or(Path::new("."));
+        let dir = self.mesh_dir()?;
         let mut model = Model::default();
         for spec in &self.meshes {
             let (mesh, origin) = if let Some(file) = &spec.file {
@@ -381,6 +374,19 @@ impl Scene {
             ));
         }
         Ok(model)
+    }
+
+    /// The directory mesh files are relative to; an error for a scene that names a prepared
+    /// model instead of meshes.
+    fn mesh_dir(&self) -> Result<&Path> {
+        if self.model.is_some() {
+            return Err(Error::format(
+                &self.path,
+                None,
+                "names a prepared model; it has no meshes to load",
+            ));
+        }
+        Ok(self.path.parent().unwrap_or(Path::new(".")))
     }
 
     /// The scene's camera, or a default one: a generator's own view, else a view fitted to the
@@ -472,16 +478,22 @@ fn read_input(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// Loads an OBJ or PLY file by its extension.
-pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+/// The mesh file formats, by extension.
+enum MeshFormat {
+    Obj,
+    Ply,
+}
+
+/// A regular file's mesh format, from its extension.
+fn mesh_format(path: &Path) -> Result<MeshFormat> {
     check_regular(path, "mesh")?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("obj") => obj::load_obj(path),
-        Some("ply") => ply::load_ply(path),
+        Some("obj") => Ok(MeshFormat::Obj),
+        Some("ply") => Ok(MeshFormat::Ply),
         _ => Err(Error::format(
             path,
             None,
@@ -490,22 +502,20 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
     }
 }
 
+/// Loads an OBJ or PLY file by its extension.
+pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    match mesh_format(path)? {
+        MeshFormat::Obj => obj::load_obj(path),
+        MeshFormat::Ply => ply::load_ply(path),
+    }
+}
+
 /// Reads an OBJ or PLY file in pieces (`obj::stream_obj`, `ply::stream_ply`), keeping at most
 /// `max_vertices` vertices.
 pub fn stream_mesh_file(path: &Path, max_vertices: u64, piece: &mut mesh::Piece) -> Result<()> {
-    check_regular(path, "mesh")?;
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("obj") => obj::stream_obj(path, max_vertices, piece),
-        Some("ply") => ply::stream_ply(path, max_vertices, piece),
-        _ => Err(Error::format(
-            path,
-            None,
-            "unknown mesh format: the file name must end in .obj or .ply",
-        )),
+    match mesh_format(path)? {
+        MeshFormat::Obj => obj::stream_obj(path, max_vertices, piece),
+        MeshFormat::Ply => ply::stream_ply(path, max_vertices, piece),
     }
 }
 

@@ -53,14 +53,7 @@ impl Scene {
     /// Hands every triangle of the scene to `sink`, in primitive-id order, with the same checks
     /// and errors as `load_model`; generators and mesh files are read in pieces.
     pub fn stream(&self, sink: &mut dyn Sink) -> Result<Streamed> {
-        if self.model.is_some() {
-            return Err(Error::format(
-                &self.path,
-                None,
-                "names a prepared model; it has no meshes to load",
-            ));
-        }
-        let dir = self.path.parent().unwrap_or(Path::new("."));
+        let dir = self.mesh_dir()?;
         let mut out = Placed {
             sink,
             batch: Vec::with_capacity(BATCH),

@@ -30,8 +30,11 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
     let how = match r.parts {
         None => "in memory".to_string(),
         Some(p) => format!(
-            "out of core in {p} part{} (--memory {} MiB)",
-            if p == 1 { "" } else { "s" },
+            "out of core in {} part{} (the largest {} of at most {} triangles; --memory {} MiB)",
+            p.count,
+            if p.count == 1 { "" } else { "s" },
+            p.largest,
+            p.capacity,
             budget.bytes >> 20
         ),
     };

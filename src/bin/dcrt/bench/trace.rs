@@ -88,6 +88,21 @@ struct BenchReport {
     rows: Vec<BenchRow>,
 }
 
+/// The block stores and shading modes each tree is measured with.
+fn stores_and_modes(a: &BenchArgs) -> (Vec<Store>, Vec<Mode>) {
+    let stores = if a.stores {
+        Store::ALL.to_vec()
+    } else {
+        vec![a.gpu.store]
+    };
+    let modes = if a.modes.is_empty() {
+        vec![Mode::Cast]
+    } else {
+        a.modes.clone()
+    };
+    (stores, modes)
+}
+
 fn shading_for(mode: Mode) -> Shading {
     Shading {
         mode,
@@ -116,16 +131,7 @@ pub fn run(
         vec![a.gpu.bvh_preset]
     };
     let mut rows = Vec::new();
-    let stores = if a.stores {
-        Store::ALL.to_vec()
-    } else {
-        vec![a.gpu.store]
-    };
-    let modes = if a.modes.is_empty() {
-        vec![Mode::Cast]
-    } else {
-        a.modes.clone()
-    };
+    let (stores, modes) = stores_and_modes(a);
     let mut peer_ids = None;
     let bar = Progress { quiet: a.quiet }.bar(
         (presets.len() * stores.len() * modes.len()) as u64,
@@ -226,16 +232,7 @@ pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
         build_ms: 0.0,
         depth: loaded.depth,
     };
-    let stores = if a.stores {
-        Store::ALL.to_vec()
-    } else {
-        vec![a.gpu.store]
-    };
-    let modes = if a.modes.is_empty() {
-        vec![Mode::Cast]
-    } else {
-        a.modes.clone()
-    };
+    let (stores, modes) = stores_and_modes(a);
     let mut rows = Vec::new();
     for &store in &stores {
         let s = Settings {
