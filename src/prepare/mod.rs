@@ -4,8 +4,8 @@
 //! The scene's triangles are streamed in (`Scene::stream`). While they fit the budget's
 //! in-memory build they are held, and the model is built whole, exactly as a render builds it.
 //! Beyond that they are spilled to a temporary file and the model is built out of core:
-//! `partition` cuts them into parts of what a part's build may use, a top tree is built over the
-//! parts' boxes (`bvh::join`), each part is built with obvhs and laid out, its nodes and triangle
+//! `partition` cuts them into parts of what a part's build may use, and the tree of its cuts is
+//! the top tree (`bvh::join`); each part is built with obvhs and laid out, its nodes and triangle
 //! order spilled, and the block file is written from those, node blocks first (the joined tree's
 //! numbering), then the parts' triangles in tree order. Temporary files live in a `Scratch`
 //! directory beside the output, removed on success, failure and interruption; the block file is
@@ -17,7 +17,7 @@ pub mod spill;
 
 use crate::blocks::Format;
 use crate::blocks::file::{BlockWriter, Meta};
-use crate::bvh::join::{PartShape, Run, Top};
+use crate::bvh::join::{Joined, PartShape, Run, Top};
 use crate::bvh::{Built, Node, Preset};
 use crate::error::{Error, Result};
 use crate::output::Scratch;
@@ -256,16 +256,88 @@ fn out_of_core(
     let parts: Vec<Part> = top.order.iter().map(|&i| parts[i].clone()).collect();
     let head = top.head(npb);
 
-    // Each part built and laid out; its nodes and triangle order spilled.
+    let built = build_parts(&parts, o, head, scratch)?;
+    mark("build parts", &mut phases);
+    let joined = top.join(&built.shapes);
+    if joined.nodes >= u64::from(u32::MAX) {
+        return Err(Error::Invalid(format!(
+            "the model needs {} BVH nodes, more than 2^32",
+            joined.nodes
+        )));
+    }
+    let node_blocks = joined.nodes.div_ceil(npb as u64);
+    let tri_blocks = count.div_ceil(u64::from(format.tris_per_block()));
+    if node_blocks + tri_blocks > u64::from(u32::MAX) {
+        return Err(Error::Invalid(format!(
+            "model needs {} blocks, more than 2^32",
+            node_blocks + tri_blocks
+        )));
+    }
+    let (node_blocks, tri_blocks) = (node_blocks as u32, tri_blocks as u32);
+    let meta = Meta {
+        camera: scene.camera_for(input.bounds),
+        width: scene.width,
+        height: scene.height,
+        background: scene.background,
+        mesh_first: input.mesh_first,
+        colors: input.colors,
+        triangles: count,
+        nodes: joined.nodes,
+        bvh_depth: joined.depth,
+        bounds_min: input.bounds.min,
+        bounds_max: input.bounds.max,
+        source: scene.path.display().to_string(),
+    };
+    let bar = o.progress.bar(
+        u64::from(node_blocks) + u64::from(tri_blocks),
+        "writing blocks",
+    );
+    crate::output::write_atomic(output, |w| {
+        let mut out = BlockWriter::start(w, output, format, node_blocks, tri_blocks, &meta)?;
+        write_blocks(&mut out, format, &joined, &parts, &built, &bar)?;
+        out.finish()
+    })?;
+    bar.finish_and_clear();
+    mark("write", &mut phases);
+    Ok(Report {
+        triangles: count,
+        node_blocks,
+        tri_blocks,
+        block_bytes: format.block_bytes,
+        depth: joined.depth,
+        parts: Some(Parts {
+            count: parts.len(),
+            largest: built.shapes.iter().map(|s| s.triangles).max().unwrap_or(0),
+            capacity: cap,
+        }),
+        seconds: t.elapsed().as_secs_f64(),
+        phases,
+    })
+}
+
+/// The parts built: their shapes, and where each one's nodes and triangle order start in the
+/// two temporary files that hold them.
+struct BuiltParts {
+    shapes: Vec<PartShape>,
+    at: Vec<(u64, u64)>,
+    nodes: PathBuf,
+    order: PathBuf,
+}
+
+/// Builds and lays out each part (its first treelet `head` nodes at most), spilling its nodes
+/// and triangle order.
+fn build_parts(parts: &[Part], o: &Options, head: usize, scratch: &Scratch) -> Result<BuiltParts> {
+    let count = parts.iter().map(|p| p.count).sum();
     let bar = o
         .progress
         .bar(count, &format!("building {} parts", parts.len()));
+    let npb = o.format.nodes_per_block() as usize;
     let buffer = o.budget.buffer_bytes(2);
     let mut nodes = Writer::<Node>::create(&scratch.path("nodes"), buffer)?;
     let mut order = Writer::<u32>::create(&scratch.path("order"), buffer)?;
     let mut shapes = Vec::with_capacity(parts.len());
     let mut at = Vec::with_capacity(parts.len());
-    for p in &parts {
+    for p in parts {
         let mut tris = Vec::with_capacity(p.count as usize);
         let mut r = spill::Reader::<Record>::open(&p.path, p.count)?;
         while let Some(chunk) = r.next_chunk()? {
@@ -285,148 +357,93 @@ fn out_of_core(
         bar.inc(p.count);
     }
     bar.finish_and_clear();
-    let (nodes_path, _) = nodes.finish()?;
-    let (order_path, _) = order.finish()?;
-    mark("build parts", &mut phases);
-    let joined = top.join(&shapes);
-    if joined.nodes >= u64::from(u32::MAX) {
-        return Err(Error::Invalid(format!(
-            "the model needs {} BVH nodes, more than 2^32",
-            joined.nodes
-        )));
-    }
-    let node_blocks = joined.nodes.div_ceil(npb as u64);
-    let tpb = u64::from(format.tris_per_block());
-    let tri_blocks = count.div_ceil(tpb);
-    if node_blocks + tri_blocks > u64::from(u32::MAX) {
-        return Err(Error::Invalid(format!(
-            "model needs {} blocks, more than 2^32",
-            node_blocks + tri_blocks
-        )));
-    }
-    let (node_blocks, tri_blocks) = (node_blocks as u32, tri_blocks as u32);
-    let camera = scene.camera_for(input.bounds);
-    let meta = Meta {
-        camera,
-        width: scene.width,
-        height: scene.height,
-        background: scene.background,
-        mesh_first: input.mesh_first,
-        colors: input.colors,
-        triangles: count,
-        nodes: joined.nodes,
-        bvh_depth: joined.depth,
-        bounds_min: input.bounds.min,
-        bounds_max: input.bounds.max,
-        source: scene.path.display().to_string(),
-    };
-
-    // The block file: node blocks in the joined numbering, then the triangles part by part.
-    let bar = o.progress.bar(
-        u64::from(node_blocks) + u64::from(tri_blocks),
-        "writing blocks",
-    );
-    let node_file = std::fs::File::open(&nodes_path).map_err(|e| Error::io(&nodes_path, e))?;
-    let order_file = std::fs::File::open(&order_path).map_err(|e| Error::io(&order_path, e))?;
-    crate::output::write_atomic(output, |w| {
-        let mut out = BlockWriter::start(w, output, format, node_blocks, tri_blocks, &meta)?;
-        let words = format.words() as usize;
-        let mut block = vec![0u32; words];
-        let mut filled = 0usize;
-        let mut put_node = |out: &mut BlockWriter, node: &Node| -> Result<()> {
-            let w: &[u32] = bytemuck::cast_slice(std::slice::from_ref(node));
-            block[filled * 16..filled * 16 + 16].copy_from_slice(w);
-            filled += 1;
-            if filled == npb {
-                out.block(&block)?;
-                block.fill(0);
-                filled = 0;
-                bar.inc(1);
-            }
-            Ok(())
-        };
-        for run in joined.runs() {
-            match run {
-                Run::Top(t) => put_node(&mut out, &joined.top_node(t))?,
-                Run::Part { part, first, count } => {
-                    let mut l = first;
-                    while l < first + count {
-                        let n = (first + count - l).min(1 << 14);
-                        let local: Vec<Node> = spill::read_at(
-                            &node_file,
-                            &nodes_path,
-                            at[part].0 + u64::from(l),
-                            n as usize,
-                        )?;
-                        for node in &local {
-                            put_node(&mut out, &joined.map(part, *node))?;
-                        }
-                        l += n;
-                    }
-                }
-            }
-        }
-        if filled > 0 {
-            out.block(&block)?;
-            bar.inc(1);
-        }
-        let mut tris = TriangleBlocks::new(format);
-        for (i, p) in parts.iter().enumerate() {
-            let records = spill::Reader::<Record>::open(&p.path, p.count)?.read_all()?;
-            let local: Vec<u32> =
-                spill::read_at(&order_file, &order_path, at[i].1, p.count as usize)?;
-            for &l in &local {
-                let r = &records[l as usize];
-                tris.push(&mut out, r, &bar)?;
-            }
-            drop(records);
-            std::fs::remove_file(&p.path).map_err(|e| Error::io(&p.path, e))?;
-        }
-        tris.finish(&mut out, &bar)?;
-        out.finish()
-    })?;
-    bar.finish_and_clear();
-    mark("write", &mut phases);
-    Ok(Report {
-        triangles: count,
-        node_blocks,
-        tri_blocks,
-        block_bytes: format.block_bytes,
-        depth: joined.depth,
-        parts: Some(Parts {
-            count: parts.len(),
-            largest: shapes.iter().map(|s| s.triangles).max().unwrap_or(0),
-            capacity: cap,
-        }),
-        seconds: t.elapsed().as_secs_f64(),
-        phases,
+    Ok(BuiltParts {
+        shapes,
+        at,
+        nodes: nodes.finish()?.0,
+        order: order.finish()?.0,
     })
 }
 
-/// Packs triangles and their primitive ids into triangle blocks (the layout of `Blocks::pack`)
-/// as they come.
-struct TriangleBlocks {
+/// The blocks of the joined tree: node blocks in the joined numbering (top nodes from memory,
+/// part nodes read back and mapped), then each part's triangles in its order, part by part
+/// (each part's file read whole, then removed).
+fn write_blocks(
+    out: &mut BlockWriter,
     format: Format,
+    joined: &Joined,
+    parts: &[Part],
+    built: &BuiltParts,
+    bar: &ProgressBar,
+) -> Result<()> {
+    let open = |p: &Path| std::fs::File::open(p).map_err(|e| Error::io(p, e));
+    let (node_file, order_file) = (open(&built.nodes)?, open(&built.order)?);
+    let mut nodes = Packer::new(format, format.nodes_per_block());
+    for run in joined.runs() {
+        match run {
+            Run::Top(t) => {
+                let node = joined.top_node(t);
+                nodes.push(out, bar, |b, s| format.put_node(b, s, &node))?
+            }
+            Run::Part { part, first, count } => {
+                let mut l = first;
+                while l < first + count {
+                    let n = (first + count - l).min(1 << 14);
+                    let at = built.at[part].0 + u64::from(l);
+                    let local: Vec<Node> =
+                        spill::read_at(&node_file, &built.nodes, at, n as usize)?;
+                    for node in &local {
+                        let node = joined.map(part, *node);
+                        nodes.push(out, bar, |b, s| format.put_node(b, s, &node))?;
+                    }
+                    l += n;
+                }
+            }
+        }
+    }
+    nodes.finish(out, bar)?;
+    let mut tris = Packer::new(format, format.tris_per_block());
+    for (i, p) in parts.iter().enumerate() {
+        let records = spill::Reader::<Record>::open(&p.path, p.count)?.read_all()?;
+        let local: Vec<u32> =
+            spill::read_at(&order_file, &built.order, built.at[i].1, p.count as usize)?;
+        for &l in &local {
+            let r = &records[l as usize];
+            tris.push(out, bar, |b, s| format.put_triangle(b, s, &r.tri, r.id))?;
+        }
+        drop(records);
+        std::fs::remove_file(&p.path).map_err(|e| Error::io(&p.path, e))?;
+    }
+    tris.finish(out, bar)
+}
+
+/// Fills blocks of `per_block` slots (nodes or triangles) as they come, zeros after the last,
+/// and writes each when full.
+struct Packer {
     block: Vec<u32>,
+    per_block: usize,
     filled: usize,
 }
 
-impl TriangleBlocks {
-    fn new(format: Format) -> TriangleBlocks {
-        TriangleBlocks {
-            format,
+impl Packer {
+    fn new(format: Format, per_block: u32) -> Packer {
+        Packer {
             block: vec![0; format.words() as usize],
+            per_block: per_block as usize,
             filled: 0,
         }
     }
 
-    fn push(&mut self, out: &mut BlockWriter, r: &Record, bar: &ProgressBar) -> Result<()> {
-        let s = self.filled;
-        let tri: &[u32] = bytemuck::cast_slice(&r.tri);
-        self.block[s * 9..s * 9 + 9].copy_from_slice(tri);
-        self.block[self.format.id_word() as usize + s] = r.id;
+    /// Fills the next slot with `put(block, slot)`.
+    fn push(
+        &mut self,
+        out: &mut BlockWriter,
+        bar: &ProgressBar,
+        put: impl FnOnce(&mut [u32], usize),
+    ) -> Result<()> {
+        put(&mut self.block, self.filled);
         self.filled += 1;
-        if self.filled == self.format.tris_per_block() as usize {
+        if self.filled == self.per_block {
             out.block(&self.block)?;
             self.block.fill(0);
             self.filled = 0;
@@ -435,10 +452,10 @@ impl TriangleBlocks {
         Ok(())
     }
 
-    fn finish(mut self, out: &mut BlockWriter, bar: &ProgressBar) -> Result<()> {
+    /// Writes the last block if it holds anything.
+    fn finish(self, out: &mut BlockWriter, bar: &ProgressBar) -> Result<()> {
         if self.filled > 0 {
             out.block(&self.block)?;
-            self.filled = 0;
             bar.inc(1);
         }
         Ok(())

@@ -213,7 +213,9 @@ fn for_each_chunk(
     let window = (2 * rayon::current_num_threads())
         .min((IN_FLIGHT_BYTES / chunk_bytes.max(1)).max(2))
         .max(1);
-    let workers = window.clamp(1, ranges.len());
+    let workers = rayon::current_num_threads()
+        .min(window)
+        .clamp(1, ranges.len());
     let shared = (
         Mutex::new(Progress {
             claimed: 0,
