@@ -73,6 +73,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let d = ray_dir(r);
             path.pos = ray_hit_point(r);
             path.err = r.herr;
+            path.tri = r.hit;
             path.n = select(n, -n, dot(n, d) > 0.0);
             path.albedo = meshes[mesh_of(r.prim)].color.xyz;
             path.depth += 1u;

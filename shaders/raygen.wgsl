@@ -45,7 +45,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let sy = 1.0 - 2.0 * (f32(py) + j.y) / f32(params.height);
         let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
         let o = params.origin.xyz;
-        var r = new_ray(o, d, FAR, LIVE, FROM_CAMERA);
+        var r = new_ray(o, d, FAR, LIVE, FROM_CAMERA, NONE);
         if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else if (params.flags & CULL) != 0u && !hits_root(o, d) {

@@ -71,7 +71,7 @@ fn every_member_reads_back_through_the_shader() {
         dc_root_row: 121,
         dc_fault_cap: 122,
         pad2: 123,
-        pad3: 124,
+        opaque_zero: 124,
         ..base
     };
     let g = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.25) };
@@ -113,6 +113,7 @@ fn every_member_reads_back_through_the_shader() {
             flags: 20,
             hit_point: [21.5, 22.5, 23.5],
             hit_error: 24.5,
+            skip: 25,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -130,6 +131,7 @@ fn every_member_reads_back_through_the_shader() {
             flags: 86,
             hit_point: [-87.0, 88.0, -89.0],
             hit_error: 1e-7,
+            skip: u32::MAX,
         },
     ];
     let out = tracer.probe(params, &rays, &shading).unwrap();
@@ -195,7 +197,7 @@ fn host_structs_match_naga_layouts() {
         "dc_lines" => dc_lines, "dc_map" => dc_map, "dc_cache_row" => dc_cache_row,
         "dc_root_row" => dc_root_row, "dc_fault_cap" => dc_fault_cap, "rect_x" => rect_x,
         "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
-        "pad1" => pad1, "pad2" => pad2, "pad3" => pad3, "sample" => sample, "seed" => seed,
+        "pad1" => pad1, "pad2" => pad2, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
         "flags" => flags, "spp" => spp,
     });
     sized(w, size_of::<Params>());
@@ -206,6 +208,7 @@ fn host_structs_match_naga_layouts() {
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
         "hx" => hit_point, "hy" => hit_point + 4, "hz" => hit_point + 8, "herr" => hit_error,
+        "skip" => skip,
     });
     sized(w, size_of::<RayState>());
     let w = same_layout!(MeshInfo, "MeshInfo", {
@@ -248,7 +251,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<ShadeParams>());
     let w = same_layout!(Path, "Path", {
         "pos" => pos, "alive" => alive, "n" => n, "depth" => depth, "albedo" => albedo,
-        "pixel" => pixel, "tp" => tp, "err" => err, "l" => l, "pad1" => pad1,
+        "pixel" => pixel, "tp" => tp, "err" => err, "l" => l, "tri" => tri,
     });
     sized(w, size_of::<Path>());
     let w = same_layout!(MirrorCase, "MirrorCase", {
