@@ -5,12 +5,13 @@ use crate::error::{Error, Result};
 use crate::render::memory;
 
 /// Peak bytes per triangle of the in-memory build, which holds the triangles, their boxes,
-/// obvhs's BVH2, the layout and the packed blocks at once: 275 measured (peak RSS of rm at 10M
-/// triangles, 2.74 GB), with a margin.
+/// obvhs's BVH2, the layout and the packed blocks at once: 283 measured (peak RSS of rm at 10M
+/// and 30M triangles, 2.62 and 7.81 GiB), with a margin.
 pub const IN_CORE_BYTES_PER_TRIANGLE: u64 = 300;
 /// Peak bytes per triangle of a part's build: its triangles, their boxes, obvhs's BVH2 and the
-/// layout (the blocks are written as they are made): 265 measured (a part of 4.2M rm triangles
-/// raised the peak RSS to 1.22 GB), with a margin for the heap's leftovers between parts.
+/// layout (the blocks are written as they are made). The whole process peaked at 296-330 bytes
+/// per triangle of its largest part (rm, parts of 2-7.6M triangles, the program's own memory
+/// included); parts are cut to at most `partition::SLACK` of the capacity, which covers that.
 pub const PART_BYTES_PER_TRIANGLE: u64 = 300;
 /// What the process holds besides the model: the program, threads, I/O buffers, the partition's
 /// histogram.
