@@ -14,6 +14,8 @@ pub mod error;
 pub mod gpu;
 pub mod mirror;
 pub mod output;
+pub mod prepare;
+pub mod progress;
 pub mod reference;
 pub mod render;
 pub mod scene;

@@ -37,11 +37,14 @@ pub fn write_record(
 struct Written {
     done: Vec<PathBuf>,
     partial: Vec<PathBuf>,
+    /// Directories of temporary files (`Scratch`), removed with everything in them.
+    scratch: Vec<PathBuf>,
 }
 
 static WRITTEN: Mutex<Written> = Mutex::new(Written {
     done: Vec::new(),
     partial: Vec::new(),
+    scratch: Vec::new(),
 });
 
 fn written() -> MutexGuard<'static, Written> {
@@ -99,7 +102,8 @@ pub fn remove_written() {
 }
 
 /// Installs the answer to SIGTERM, SIGINT and SIGHUP for a command that writes outputs: a thread
-/// that, on the first of them, removes the run's temporary files and outputs, says so on stderr
+/// that, on the first of them, removes the run's temporary files (`Scratch` directories too) and
+/// outputs, says so on stderr
 /// and exits with 128 + the signal's number, whatever the rest of the process is doing (a GPU
 /// wait, an MPI call). A file being renamed into place is waited for, so none is left half done.
 /// A process that has written nothing waits `idle_grace` first: an MPI launcher kills every rank
@@ -118,6 +122,9 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                 for p in w.partial.iter().chain(&w.done) {
                     let _ = std::fs::remove_file(p);
                 }
+                for d in &w.scratch {
+                    let _ = std::fs::remove_dir_all(d);
+                }
                 let name = match sig {
                     SIGTERM => "SIGTERM",
                     SIGINT => "SIGINT",
@@ -127,7 +134,7 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                     "error: interrupted by {name}; removed the {} output file(s) this run wrote",
                     w.done.len()
                 );
-                if w.done.is_empty() && w.partial.is_empty() {
+                if w.done.is_empty() && w.partial.is_empty() && w.scratch.is_empty() {
                     std::thread::sleep(idle_grace);
                 }
                 signal_hook::low_level::exit(128 + sig);
@@ -135,6 +142,42 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
         })
         .map_err(|e| DcrtError::Internal(format!("cannot start the signal thread: {e}")))?;
     Ok(())
+}
+
+/// A directory of temporary files beside an output (the out-of-core prepare's spilled
+/// triangles and parts): hidden, unique to the process, removed with its contents when dropped
+/// (success or failure) and by an interruption (`remove_on_interrupt`).
+pub struct Scratch {
+    dir: PathBuf,
+}
+
+impl Scratch {
+    /// A new directory beside `output`, in the same file system as the output will be.
+    pub fn beside(output: &Path) -> Result<Scratch> {
+        let name = output
+            .file_name()
+            .map(|n| n.to_string_lossy())
+            .unwrap_or_default();
+        let dir = output.with_file_name(format!(".{name}.{}.parts", std::process::id()));
+        // Created while registered, so an interruption either sees it or precedes it.
+        let mut w = written();
+        std::fs::create_dir(&dir).map_err(|e| DcrtError::io(&dir, e))?;
+        w.scratch.push(dir.clone());
+        Ok(Scratch { dir })
+    }
+
+    /// The path of a temporary file `name` in the directory.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let mut w = written();
+        let _ = std::fs::remove_dir_all(&self.dir);
+        w.scratch.retain(|d| d != &self.dir);
+    }
 }
 
 /// Writes `bytes` to `path` as `write_atomic` does.

@@ -29,7 +29,7 @@ use crate::error::{Error, Result};
 use crate::scene::Camera;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
-use std::io::{Read, Write};
+use std::io::{BufWriter, Read, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
@@ -59,36 +59,121 @@ pub struct Meta {
 
 /// Writes the block file through `output::write_atomic`: a failed write leaves no half file.
 pub fn write(path: &Path, blocks: &Blocks, meta: &Meta) -> Result<()> {
-    let io = |e| Error::io(path, e);
-    let json = serde_json::to_vec(meta).map_err(|e| Error::Invalid(e.to_string()))?;
-    let n = blocks.count() as u64;
-    let table_end = FIXED as u64 + json.len() as u64 + 4 * n;
-    let data = table_end.div_ceil(ALIGN) * ALIGN;
-    let mut head = Vec::with_capacity(FIXED);
-    head.extend_from_slice(MAGIC);
-    for v in [
-        VERSION,
-        blocks.format.block_bytes,
-        blocks.node_blocks,
-        blocks.tri_blocks,
-        0,
-        json.len() as u32,
-    ] {
-        head.extend_from_slice(&v.to_le_bytes());
-    }
-    head.extend_from_slice(&data.to_le_bytes());
-    head.extend_from_slice(&header_crc(&head, &json).to_le_bytes());
     crate::output::write_atomic(path, |w| {
+        let mut out = BlockWriter::start(
+            w,
+            path,
+            blocks.format,
+            blocks.node_blocks,
+            blocks.tri_blocks,
+            meta,
+        )?;
+        for k in 0..blocks.count() {
+            out.block(blocks.block(k))?;
+        }
+        out.finish()
+    })
+}
+
+/// Writes a block file a block at a time, in id order, for models whose blocks are never all in
+/// memory (the out-of-core prepare): the header and metadata first, then the blocks, and last
+/// the checksum table, which lies before the blocks and is written in place. `write` goes
+/// through it too, so both make the same bytes.
+pub struct BlockWriter<'w> {
+    w: &'w mut BufWriter<File>,
+    path: PathBuf,
+    format: Format,
+    count: u64,
+    crcs: Vec<u32>,
+    table_at: u64,
+}
+
+impl<'w> BlockWriter<'w> {
+    /// Writes the header and metadata of a file of `node_blocks` + `tri_blocks` blocks into `w`
+    /// (a file written by `output::write_atomic` for `path`, which errors name).
+    pub fn start(
+        w: &'w mut BufWriter<File>,
+        path: &Path,
+        format: Format,
+        node_blocks: u32,
+        tri_blocks: u32,
+        meta: &Meta,
+    ) -> Result<BlockWriter<'w>> {
+        let io = |e| Error::io(path, e);
+        let json = serde_json::to_vec(meta).map_err(|e| Error::Invalid(e.to_string()))?;
+        let n = u64::from(node_blocks) + u64::from(tri_blocks);
+        if n > u64::from(u32::MAX) {
+            return Err(Error::Invalid(format!(
+                "model needs {n} blocks, more than 2^32"
+            )));
+        }
+        let table_at = FIXED as u64 + json.len() as u64;
+        let table_end = table_at + 4 * n;
+        let data = table_end.div_ceil(ALIGN) * ALIGN;
+        let mut head = Vec::with_capacity(FIXED);
+        head.extend_from_slice(MAGIC);
+        for v in [
+            VERSION,
+            format.block_bytes,
+            node_blocks,
+            tri_blocks,
+            0,
+            json.len() as u32,
+        ] {
+            head.extend_from_slice(&v.to_le_bytes());
+        }
+        head.extend_from_slice(&data.to_le_bytes());
+        head.extend_from_slice(&header_crc(&head, &json).to_le_bytes());
         w.write_all(&head).map_err(io)?;
         w.write_all(&json).map_err(io)?;
-        for k in 0..blocks.count() {
-            let crc = crc32fast::hash(bytemuck::cast_slice(blocks.block(k)));
-            w.write_all(&crc.to_le_bytes()).map_err(io)?;
-        }
-        w.write_all(&vec![0u8; (data - table_end) as usize])
+        // The checksum table's place, filled by `finish`, and the padding to the first block.
+        w.write_all(&vec![0u8; (data - table_at) as usize])
             .map_err(io)?;
-        w.write_all(bytemuck::cast_slice(&blocks.words)).map_err(io)
-    })
+        Ok(BlockWriter {
+            w,
+            path: path.to_path_buf(),
+            format,
+            count: n,
+            crcs: Vec::with_capacity(n as usize),
+            table_at,
+        })
+    }
+
+    /// Appends the next block (`format.words()` words).
+    pub fn block(&mut self, words: &[u32]) -> Result<()> {
+        debug_assert_eq!(words.len(), self.format.words() as usize);
+        if self.crcs.len() as u64 == self.count {
+            return Err(Error::Internal(format!(
+                "{}: more blocks than the {} the header declares",
+                self.path.display(),
+                self.count
+            )));
+        }
+        let bytes: &[u8] = bytemuck::cast_slice(words);
+        self.crcs.push(crc32fast::hash(bytes));
+        self.w
+            .write_all(bytes)
+            .map_err(|e| Error::io(&self.path, e))
+    }
+
+    /// Checks that every declared block was written and fills in the checksum table.
+    pub fn finish(self) -> Result<()> {
+        let io = |e| Error::io(&self.path, e);
+        if self.crcs.len() as u64 != self.count {
+            return Err(Error::Internal(format!(
+                "{}: {} blocks written, the header declares {}",
+                self.path.display(),
+                self.crcs.len(),
+                self.count
+            )));
+        }
+        self.w.flush().map_err(io)?;
+        let table: Vec<u8> = self.crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
+        self.w
+            .get_ref()
+            .write_all_at(&table, self.table_at)
+            .map_err(io)
+    }
 }
 
 /// CRC-32 of the fixed header before the checksum field, then the metadata.

@@ -52,6 +52,19 @@ impl Format {
     pub fn id_word(&self) -> u32 {
         TRI_WORDS * self.tris_per_block()
     }
+
+    /// Puts `node` in slot `s` of node block `block`.
+    pub fn put_node(&self, block: &mut [u32], s: usize, node: &Node) {
+        let w = NODE_WORDS as usize;
+        block[s * w..(s + 1) * w].copy_from_slice(bytemuck::cast_slice(std::slice::from_ref(node)));
+    }
+
+    /// Puts triangle `tri`, of primitive id `id`, in slot `s` of triangle block `block`.
+    pub fn put_triangle(&self, block: &mut [u32], s: usize, tri: &[[f32; 3]; 3], id: u32) {
+        let w = TRI_WORDS as usize;
+        block[s * w..(s + 1) * w].copy_from_slice(bytemuck::cast_slice(tri));
+        block[self.id_word() as usize + s] = id;
+    }
 }
 
 impl Default for Format {
@@ -90,14 +103,11 @@ impl Blocks {
             let bytes: &[u32] = bytemuck::cast_slice(chunk);
             block[..bytes.len()].copy_from_slice(bytes);
         }
-        let id0 = format.id_word() as usize;
         for (b, block) in tri_words.chunks_mut(bw).enumerate() {
             let first = b * tpb;
             let last = (first + tpb).min(bvh.triangles.len());
             for (s, t) in (first..last).enumerate() {
-                let tri: &[u32] = bytemuck::cast_slice(&bvh.triangles[t]);
-                block[s * 9..s * 9 + 9].copy_from_slice(tri);
-                block[id0 + s] = bvh.prim_ids[t];
+                format.put_triangle(block, s, &bvh.triangles[t], bvh.prim_ids[t]);
             }
         }
         Ok(Blocks {

@@ -13,13 +13,15 @@ use std::collections::VecDeque;
 
 pub struct Laid {
     pub nodes: Vec<Node>,
-    pub triangles: Vec<[[f32; 3]; 3]>,
+    /// `prim_ids[i]` is the input index of the i-th triangle in layout order.
     pub prim_ids: Vec<u32>,
     pub depth: u32,
+    /// Nodes of the first treelet (the root's), `nodes[..head]`.
+    pub head: usize,
 }
 
 /// The BVH2 nodes a wide node over BVH2 node `i` holds, in slot order.
-fn collapse(bvh: &Bvh2, i: usize) -> Vec<usize> {
+pub(super) fn collapse(bvh: &Bvh2, i: usize) -> Vec<usize> {
     let old = &bvh.nodes;
     let n = &old[i];
     if n.prim_count > 0 {
@@ -47,8 +49,11 @@ fn collapse(bvh: &Bvh2, i: usize) -> Vec<usize> {
     kids
 }
 
-pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
+/// Lays `bvh` out with treelets of `treelet` nodes, the first (the root's) of at most `head`
+/// nodes; triangles are numbered depth-first (`Laid::prim_ids`).
+pub fn blocked(bvh: &Bvh2, treelet: usize, head: usize) -> Laid {
     let treelet = treelet.max(1);
+    let head = head.max(1);
     let old = &bvh.nodes;
     let is_leaf = |k: usize| old[k].prim_count > 0;
     // Placement: `kids[n]` are the BVH2 nodes of wide node n's slots; its inner children are
@@ -74,7 +79,8 @@ pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
                 base: &mut Vec<u32>,
                 pending: &mut Vec<usize>,
                 start: std::ops::Range<usize>,
-                mut placed: usize| {
+                mut placed: usize,
+                treelet: usize| {
         let mut queue: VecDeque<usize> = start.collect();
         let mut frontier = Vec::new();
         while let Some(n) = queue.pop_front() {
@@ -92,28 +98,27 @@ pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
         // Depth-first over the frontier: push in reverse so the first is laid out next.
         pending.extend(frontier.into_iter().rev());
     };
-    grow(&mut kids, &mut base, &mut pending, 0..1, 1);
+    grow(&mut kids, &mut base, &mut pending, 0..1, 1, head);
+    let head_nodes = kids.len();
     while let Some(n) = pending.pop() {
         let group = place(&mut kids, &mut base, n);
         let m = group.len();
-        grow(&mut kids, &mut base, &mut pending, group, m);
+        grow(&mut kids, &mut base, &mut pending, group, m, treelet);
     }
 
     // Triangles depth-first, each node's leaves adjacent in slot order; the depth on the way.
     let mut tri_base = vec![0u32; kids.len()];
-    let mut triangles = Vec::with_capacity(input.len());
-    let mut prim_ids = Vec::with_capacity(input.len());
+    let mut prim_ids = Vec::with_capacity(bvh.primitive_indices.len());
     let mut depth = 0u32;
     let mut stack = vec![(0usize, 1u32)];
     while let Some((n, d)) = stack.pop() {
         depth = depth.max(d);
-        tri_base[n] = triangles.len() as u32;
+        tri_base[n] = prim_ids.len() as u32;
         for &k in kids[n].iter().filter(|&&k| is_leaf(k)) {
             let first = old[k].first_index as usize;
-            for &p in &bvh.primitive_indices[first..first + old[k].prim_count as usize] {
-                triangles.push(input[p as usize]);
-                prim_ids.push(p);
-            }
+            prim_ids.extend_from_slice(
+                &bvh.primitive_indices[first..first + old[k].prim_count as usize],
+            );
         }
         let m = inner_count(&kids, n) as u32;
         for c in (0..m).rev() {
@@ -149,18 +154,18 @@ pub fn blocked(bvh: &Bvh2, input: &[[[f32; 3]; 3]], treelet: usize) -> Laid {
         .collect();
     Laid {
         nodes,
-        triangles,
         prim_ids,
         depth,
+        head: head_nodes,
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use crate::bvh::{Bvh, Child, Preset, WIDTH};
+pub(super) mod tests {
+    use crate::bvh::{Bvh, Child, Node, Preset, WIDTH};
     use crate::scene::Model;
 
-    fn soup(n: usize) -> Model {
+    pub(in crate::bvh) fn soup(n: usize) -> Model {
         let mut s = 12345u64;
         let mut r = || {
             s = s
@@ -216,31 +221,44 @@ mod tests {
     /// parents, every decoded child box around its triangles, leaf ranges covering the triangle
     /// list in depth-first order, the depth as said.
     fn check_tree(model: &Model, b: usize) -> Bvh {
-        let n = model.triangles.len();
         let bvh = Bvh::build(model, Preset::Fast, b);
+        check_nodes(&bvh.nodes, &bvh.triangles, &bvh.prim_ids, model, bvh.depth);
+        bvh
+    }
+
+    /// The checks of `check_tree` on a tree given as its parts: `nodes`, `triangles` in layout
+    /// order with their input ids `prim_ids`, over `model`, of depth `depth`.
+    pub(in crate::bvh) fn check_nodes(
+        nodes: &[Node],
+        triangles: &[[[f32; 3]; 3]],
+        prim_ids: &[u32],
+        model: &Model,
+        depth_said: u32,
+    ) {
+        let n = model.triangles.len();
         let mut seen = vec![false; n];
-        for &p in &bvh.prim_ids {
+        for &p in prim_ids {
             assert!(!seen[p as usize], "primitive {p} twice");
             seen[p as usize] = true;
         }
         assert!(seen.iter().all(|&s| s));
-        for (i, t) in bvh.triangles.iter().enumerate() {
-            assert_eq!(*t, model.triangles[bvh.prim_ids[i] as usize]);
+        for (i, t) in triangles.iter().enumerate() {
+            assert_eq!(*t, model.triangles[prim_ids[i] as usize]);
         }
         let inside = |(lo, hi): ([f32; 3], [f32; 3]), t: &[[f32; 3]; 3]| {
             t.iter()
                 .all(|v| (0..3).all(|a| lo[a] <= v[a] && v[a] <= hi[a]))
         };
         // The triangles below node i, checked against every box on the way down.
-        let mut reached = vec![0u32; bvh.nodes.len()];
+        let mut reached = vec![0u32; nodes.len()];
         let mut next_tri = 0u32;
         let mut depth = 0;
         // (node, depth, the boxes of its ancestors' slots that lead to it)
-        let mut stack = vec![(0usize, 1u32, vec![bvh.nodes[0].bounds()])];
+        let mut stack = vec![(0usize, 1u32, vec![nodes[0].bounds()])];
         while let Some((i, d, boxes)) = stack.pop() {
             depth = depth.max(d);
             reached[i] += 1;
-            let node = bvh.nodes[i];
+            let node = nodes[i];
             assert_eq!(
                 node.tri_base, next_tri,
                 "node {i}: depth-first triangle ranges"
@@ -258,7 +276,7 @@ mod tests {
                     Child::Leaf { first, count } => {
                         assert_eq!(first, next_tri, "node {i} slot {s}: leaves adjacent");
                         for t in first..first + count {
-                            let tri = &bvh.triangles[t as usize];
+                            let tri = &triangles[t as usize];
                             assert!(bs.iter().all(|&b| inside(b, tri)), "node {i} slot {s}");
                         }
                         next_tri += count;
@@ -273,9 +291,8 @@ mod tests {
         }
         // Inner children's boxes are checked through their own leaves' triangles above.
         assert_eq!(next_tri as usize, n);
-        assert_eq!(depth, bvh.depth);
+        assert_eq!(depth, depth_said);
         assert!(reached.iter().all(|&r| r == 1));
-        bvh
     }
 
     #[test]

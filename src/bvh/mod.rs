@@ -3,6 +3,7 @@
 //! BVH in-order (chapter 5.3.2).
 
 mod coincident;
+pub mod join;
 pub mod layout;
 
 use crate::scene::Model;
@@ -211,18 +212,44 @@ pub struct Bvh {
 impl Bvh {
     /// Builds over `model`'s triangles; `nodes_per_block` sets the treelet size of the layout.
     pub fn build(model: &Model, preset: Preset, nodes_per_block: usize) -> Bvh {
-        let t0 = Instant::now();
-        let aabbs: Vec<Aabb> = model
-            .triangles
+        let built = Built::over(&model.triangles, preset, nodes_per_block, nodes_per_block);
+        let triangles = built
+            .laid
+            .prim_ids
             .iter()
-            .map(|t| {
-                let mut b = Aabb::INVALID;
-                for p in t {
-                    b.extend(glam::Vec3A::from_array(*p));
-                }
-                b
-            })
+            .map(|&p| model.triangles[p as usize])
             .collect();
+        Bvh {
+            nodes: built.laid.nodes,
+            triangles,
+            prim_ids: built.laid.prim_ids,
+            depth: built.laid.depth,
+            build_time: built.build_time,
+            layout_time: built.layout_time,
+        }
+    }
+}
+
+/// A tree over a list of triangles in the blocked layout, the triangles left where they are:
+/// `laid.prim_ids` says which comes where (the out-of-core build lays out one part at a time
+/// and writes its triangles later).
+pub struct Built {
+    pub laid: layout::Laid,
+    pub build_time: Duration,
+    pub layout_time: Duration,
+}
+
+impl Built {
+    /// Builds over `triangles` with obvhs and lays the tree out with treelets of
+    /// `nodes_per_block` nodes, the root's of at most `head`.
+    pub fn over(
+        triangles: &[[[f32; 3]; 3]],
+        preset: Preset,
+        nodes_per_block: usize,
+        head: usize,
+    ) -> Built {
+        let t0 = Instant::now();
+        let aabbs: Vec<Aabb> = triangles.iter().map(triangle_box).collect();
         let mut core = Duration::ZERO;
         let bvh2 = match coincident::find(&aabbs) {
             None => obvhs::bvh2::builder::build_bvh2(&aabbs, preset.params(), &mut core),
@@ -236,14 +263,20 @@ impl Bvh {
         drop(aabbs);
         let build_time = t0.elapsed();
         let t1 = Instant::now();
-        let out = layout::blocked(&bvh2, &model.triangles, nodes_per_block);
-        Bvh {
-            nodes: out.nodes,
-            triangles: out.triangles,
-            prim_ids: out.prim_ids,
-            depth: out.depth,
+        let laid = layout::blocked(&bvh2, nodes_per_block, head);
+        Built {
+            laid,
             build_time,
             layout_time: t1.elapsed(),
         }
     }
+}
+
+/// A triangle's bounding box, as the build sees it.
+pub fn triangle_box(t: &[[f32; 3]; 3]) -> Aabb {
+    let mut b = Aabb::INVALID;
+    for p in t {
+        b.extend(glam::Vec3A::from_array(*p));
+    }
+    b
 }

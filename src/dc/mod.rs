@@ -137,16 +137,9 @@ impl CacheSize {
                 Err(bad())
             };
         }
-        for (suffix, mult) in [
-            ("GiB", 1u64 << 30),
-            ("MiB", 1 << 20),
-            ("KiB", 1 << 10),
-            ("B", 1),
-        ] {
-            if let Some(n) = t.strip_suffix(suffix) {
-                let n: u64 = n.trim().parse().map_err(|_| bad())?;
-                return Ok(CacheSize::Bytes(n.checked_mul(mult).ok_or_else(bad)?));
-            }
+        if t.ends_with('B') {
+            let bytes = crate::render::memory::parse_size(t).map_err(|_| bad())?;
+            return Ok(CacheSize::Bytes(bytes));
         }
         let f: f64 = t.parse().map_err(|_| bad())?;
         CacheSize::fraction(f).ok_or_else(bad)

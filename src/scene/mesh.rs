@@ -4,6 +4,10 @@
 use crate::error::{Error, Result};
 use std::path::Path;
 
+/// Where a mesh read in pieces goes: the vertices read so far (every one a triangle may use),
+/// and the next triangles, in order.
+pub type Piece<'p> = dyn FnMut(&[[f32; 3]], &[[u32; 3]]) -> Result<()> + 'p;
+
 /// Triangles in input order: triangle `i` of the mesh is `triangles[i]`, indices into `positions`.
 /// Polygons are fan-triangulated in order by the loaders, so primitive ids follow file order.
 #[derive(Clone, Debug, Default)]

@@ -6,6 +6,7 @@ pub mod generate;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+pub mod stream;
 mod strict;
 
 use crate::error::{Error, Result};
@@ -339,14 +340,7 @@ impl Scene {
 
     /// Loads every mesh and flattens them into one triangle list in primitive-id order.
     pub fn load_model(&self) -> Result<Model> {
-        if self.model.is_some() {
-            return Err(Error::format(
-                &self.path,
-                None,
-                "names a prepared model; it has no meshes to load",
-            ));
-        }
-        let dir = self.path.parent().unwrap_or(Path::new("."));
+        let dir = self.mesh_dir()?;
         let mut model = Model::default();
         for spec in &self.meshes {
             let (mesh, origin) = if let Some(file) = &spec.file {
@@ -382,9 +376,27 @@ impl Scene {
         Ok(model)
     }
 
+    /// The directory mesh files are relative to; an error for a scene that names a prepared
+    /// model instead of meshes.
+    fn mesh_dir(&self) -> Result<&Path> {
+        if self.model.is_some() {
+            return Err(Error::format(
+                &self.path,
+                None,
+                "names a prepared model; it has no meshes to load",
+            ));
+        }
+        Ok(self.path.parent().unwrap_or(Path::new(".")))
+    }
+
     /// The scene's camera, or a default one: a generator's own view, else a view fitted to the
     /// model's bounds.
     pub fn camera_or_default(&self, model: &Model) -> Camera {
+        self.camera_for(model.bounds)
+    }
+
+    /// The scene's camera, or a default one for a model of `bounds` (see `camera_or_default`).
+    pub fn camera_for(&self, bounds: Bounds) -> Camera {
         if let Some(c) = self.camera {
             return c;
         }
@@ -401,7 +413,7 @@ impl Scene {
                 view_angle: v.view_angle,
             };
         }
-        fitted_camera(model.bounds)
+        fitted_camera(bounds)
     }
 }
 
@@ -466,21 +478,44 @@ fn read_input(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// Loads an OBJ or PLY file by its extension.
-pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+/// The mesh file formats, by extension.
+enum MeshFormat {
+    Obj,
+    Ply,
+}
+
+/// A regular file's mesh format, from its extension.
+fn mesh_format(path: &Path) -> Result<MeshFormat> {
     check_regular(path, "mesh")?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("obj") => obj::load_obj(path),
-        Some("ply") => ply::load_ply(path),
+        Some("obj") => Ok(MeshFormat::Obj),
+        Some("ply") => Ok(MeshFormat::Ply),
         _ => Err(Error::format(
             path,
             None,
             "unknown mesh format: the file name must end in .obj or .ply",
         )),
+    }
+}
+
+/// Loads an OBJ or PLY file by its extension.
+pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    match mesh_format(path)? {
+        MeshFormat::Obj => obj::load_obj(path),
+        MeshFormat::Ply => ply::load_ply(path),
+    }
+}
+
+/// Reads an OBJ or PLY file in pieces (`obj::stream_obj`, `ply::stream_ply`), keeping at most
+/// `max_vertices` vertices.
+pub fn stream_mesh_file(path: &Path, max_vertices: u64, piece: &mut mesh::Piece) -> Result<()> {
+    match mesh_format(path)? {
+        MeshFormat::Obj => obj::stream_obj(path, max_vertices, piece),
+        MeshFormat::Ply => ply::stream_ply(path, max_vertices, piece),
     }
 }
 
@@ -527,6 +562,42 @@ impl Bounds {
     }
 }
 
+/// A mesh entry's `scale`, then `translate`, applied to its triangles in f64.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Placement {
+    scale: f64,
+    translate: [f64; 3],
+}
+
+impl Placement {
+    pub(crate) fn of(spec: &MeshSpec) -> Placement {
+        Placement {
+            scale: spec.scale.unwrap_or(1.0),
+            translate: spec.translate.unwrap_or([0.0; 3]),
+        }
+    }
+
+    /// Triangle `i` of the mesh from `origin`, placed; an error if a coordinate is then not
+    /// finite.
+    pub(crate) fn triangle(
+        &self,
+        tri: [[f32; 3]; 3],
+        origin: &Path,
+        i: u64,
+    ) -> Result<[[f32; 3]; 3]> {
+        let (s, t) = (self.scale, self.translate);
+        let tri = tri.map(|p| std::array::from_fn(|a| (f64::from(p[a]) * s + t[a]) as f32));
+        if !tri.iter().flatten().all(|c| c.is_finite()) {
+            return Err(Error::format(
+                origin,
+                Some(format!("triangle {i}")),
+                "a coordinate is not finite after scale and translate",
+            ));
+        }
+        Ok(tri)
+    }
+}
+
 /// All triangles of a scene, unshared, in primitive-id order (meshes in scene order, faces in file
 /// order), with each mesh's first primitive id and colour.
 #[derive(Clone, Debug, Default)]
@@ -547,24 +618,13 @@ impl Model {
                 "the scene has more than 2^32-1 triangles",
             ));
         }
-        let scale = spec.scale.unwrap_or(1.0);
-        let t = spec.translate.unwrap_or([0.0; 3]);
-        let place = |p: [f32; 3]| -> [f32; 3] {
-            std::array::from_fn(|a| (f64::from(p[a]) * scale + t[a]) as f32)
-        };
+        let place = Placement::of(spec);
         self.mesh_first.push(self.triangles.len() as u32);
         self.colors.push(spec.color.unwrap_or(DEFAULT_COLOR));
         self.triangles.reserve(mesh.triangles.len());
         for i in 0..mesh.triangles.len() {
-            let tri = mesh.corners(i).map(place);
+            let tri = place.triangle(mesh.corners(i), origin, i as u64)?;
             for p in &tri {
-                if !p.iter().all(|c| c.is_finite()) {
-                    return Err(Error::format(
-                        origin,
-                        Some(format!("triangle {i}")),
-                        "a coordinate is not finite after scale and translate",
-                    ));
-                }
                 self.bounds.grow(*p);
             }
             self.triangles.push(tri);

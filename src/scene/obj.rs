@@ -5,7 +5,7 @@
 //! corrupt or mistaken file fails with the line that is wrong instead of rendering garbage.
 
 use crate::error::{Error, Result};
-use crate::scene::mesh::Mesh;
+use crate::scene::mesh::{Mesh, Piece};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -26,8 +26,31 @@ pub fn load_obj(path: &Path) -> Result<Mesh> {
 /// Polygons are fan-triangulated in order, (v0,v1,v2), (v0,v2,v3), ..., so triangle ids follow
 /// file order. Faces may refer to vertices defined further down; those indices are checked once
 /// the whole file has been read. A file without faces gives an empty triangle list, not an error.
-pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
+pub fn parse_obj<R: BufRead>(reader: R, origin: &Path) -> Result<Mesh> {
+    read_obj(reader, origin, None)
+}
+
+/// Reads the OBJ file at `path` as `load_obj` does, handing its triangles to `piece` with the
+/// vertices read so far, `PIECE` at a time, so that the triangles are never all held: every
+/// vertex is kept (a face may use any earlier one), and more than `max_vertices` is an error.
+/// Faces that refer to vertices further down are held until those are read.
+pub fn stream_obj(path: &Path, max_vertices: u64, piece: &mut Piece) -> Result<()> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = BufReader::with_capacity(1 << 18, file);
+    read_obj(reader, path, Some((max_vertices, piece))).map(drop)
+}
+
+/// Triangles handed on at a time when streaming.
+const PIECE: usize = 1 << 16;
+
+fn read_obj<R: BufRead>(
+    mut reader: R,
+    origin: &Path,
+    mut stream: Option<(u64, &mut Piece)>,
+) -> Result<Mesh> {
     let mut mesh = Mesh::default();
+    // The largest vertex index of the triangles not yet handed on.
+    let mut largest = 0u32;
     let mut line = Vec::new();
     let mut poly: Vec<u32> = Vec::new();
     // (line, largest 0-based index) of every face that refers past the vertices read so far.
@@ -73,6 +96,14 @@ pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
                 if !p.iter().all(|c| c.is_finite()) {
                     return Err(at(format!("coordinate is not finite: {p:?}")));
                 }
+                if let Some((max, _)) = &stream
+                    && mesh.positions.len() as u64 >= *max
+                {
+                    return Err(at(format!(
+                        "more than {max} vertices, what the memory budget holds (every vertex \
+                         of a mesh file is kept while its faces are read); raise --memory"
+                    )));
+                }
                 mesh.positions.push(p);
             }
             "f" => {
@@ -98,6 +129,15 @@ pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
                 for k in 1..poly.len() - 1 {
                     mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
                 }
+                largest = poly.iter().fold(largest, |m, &v| m.max(v));
+                if let Some((_, piece)) = &mut stream
+                    && mesh.triangles.len() >= PIECE
+                    && (largest as usize) < mesh.positions.len()
+                {
+                    piece(&mesh.positions, &mesh.triangles)?;
+                    mesh.triangles.clear();
+                    largest = 0;
+                }
             }
             k if IGNORED.contains(&k) => {}
             k => {
@@ -119,6 +159,12 @@ pub fn parse_obj<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
                 u64::from(v) + 1
             ),
         ));
+    }
+    if let Some((_, piece)) = &mut stream
+        && !mesh.triangles.is_empty()
+    {
+        piece(&mesh.positions, &mesh.triangles)?;
+        mesh.triangles.clear();
     }
     Ok(mesh)
 }
@@ -381,5 +427,89 @@ mod tests {
                 mesh.validate(Path::new("fuzz.obj")).unwrap();
             }
         }
+    }
+
+    /// An n x n grid of vertices and its quads, fan-triangulated by the loader.
+    fn grid_obj(n: usize) -> String {
+        let mut t = String::new();
+        for i in 0..n * n {
+            t += &format!("v {} {} 0\n", i % n, i / n);
+        }
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x + 1;
+                t += &format!("f {} {} {} {}\n", v, v + 1, v + n + 1, v + n);
+            }
+        }
+        t
+    }
+
+    type Corners = Vec<[[u32; 3]; 3]>;
+
+    /// The triangles `read_obj` streams from `text` (corner bits), and the pieces.
+    fn streamed(text: &str, max: u64) -> Result<(Corners, usize)> {
+        let (mut tris, mut pieces) = (Vec::new(), 0);
+        read_obj(
+            text.as_bytes(),
+            Path::new("s.obj"),
+            Some((max, &mut |pos: &[[f32; 3]], t: &[[u32; 3]]| {
+                tris.extend(
+                    t.iter()
+                        .map(|x| x.map(|v| pos[v as usize].map(f32::to_bits))),
+                );
+                pieces += 1;
+                Ok(())
+            })),
+        )?;
+        Ok((tris, pieces))
+    }
+
+    fn corners(m: &Mesh) -> Corners {
+        (0..m.triangle_count())
+            .map(|i| m.corners(i).map(|p| p.map(f32::to_bits)))
+            .collect()
+    }
+
+    /// Streaming hands on the triangles of the whole-file parse, in order, in pieces; faces that
+    /// refer ahead or back count like any other; too many vertices and a consumer's failure stop
+    /// it with their own errors.
+    #[test]
+    fn streaming_hands_on_the_parsed_triangles_in_pieces() {
+        let grid = grid_obj(260);
+        let text = format!("f 1 2 3\n{grid}f -1 -2 -3\n");
+        let whole = parse(&text).unwrap();
+        let (got, pieces) = streamed(&text, u64::MAX).unwrap();
+        assert!(got == corners(&whole), "streamed triangles differ");
+        assert!(pieces >= 3, "{pieces} pieces");
+        // A face that uses the last vertex, which comes last: everything is held until then.
+        let last = grid.lines().nth(260 * 260 - 1).unwrap();
+        let rest: Vec<&str> = grid.lines().filter(|l| *l != last).collect();
+        let ahead = format!("f 1 2 {}\n{}\n{last}\n", 260 * 260, rest.join("\n"));
+        let whole = parse(&ahead).unwrap();
+        let (got, pieces) = streamed(&ahead, u64::MAX).unwrap();
+        assert!(got == corners(&whole), "streamed triangles differ");
+        assert_eq!(pieces, 1);
+        let e = streamed(&text, 1000).unwrap_err().to_string();
+        assert!(
+            e.contains("s.obj: line 1002") && e.contains("raise --memory"),
+            "{e}"
+        );
+        let e = streamed(&ahead, 1000).unwrap_err().to_string();
+        assert!(e.contains("s.obj: line 1002"), "{e}");
+        // A face past the last vertex is found at the end, as by the whole-file parse.
+        let bad = format!("{grid}f 1 2 {}\n", 260 * 260 + 1);
+        let e = streamed(&bad, u64::MAX).unwrap_err().to_string();
+        assert!(e.contains("out of range"), "{e}");
+        let mut calls = 0;
+        let e = read_obj(
+            text.as_bytes(),
+            Path::new("s.obj"),
+            Some((u64::MAX, &mut |_: &[[f32; 3]], _: &[[u32; 3]]| {
+                calls += 1;
+                Err(Error::Invalid("disk full".into()))
+            })),
+        )
+        .unwrap_err();
+        assert_eq!((calls, e.to_string()), (1, "disk full".to_string()));
     }
 }

@@ -129,3 +129,28 @@ impl Rng {
         }
     }
 }
+
+/// The names in `dir`, sorted: what a run left behind.
+pub fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// `dcrt ARGS` under `ulimit -f BLOCKS` with SIGXFSZ ignored: writes past the limit fail with
+/// EFBIG, as on a full filesystem.
+pub fn limited(blocks: u32, args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::process::Output {
+    let mut cmd = std::process::Command::new("bash");
+    cmd.arg("-c")
+        .arg(format!(
+            "ulimit -f {blocks}; trap '' XFSZ; exec \"$0\" \"$@\""
+        ))
+        .arg(env!("CARGO_BIN_EXE_dcrt"));
+    for a in args {
+        cmd.arg(a);
+    }
+    cmd.output().unwrap()
+}

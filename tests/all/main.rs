@@ -13,6 +13,7 @@ mod layout;
 mod limits;
 mod mirror;
 mod outputs;
+mod prepare;
 mod robust;
 mod scale;
 mod shaders;

@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use std::ffi::OsStr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 const SCENE: &str = "[camera]\nposition = [0.3, 0.3, 3]\nfocal_point = [0.3, 0.3, 0]\n\
                      view_up = [0, 1, 0]\nview_angle = 40\n[image]\nwidth = 24\nheight = 16\n\
@@ -26,16 +26,6 @@ fn refused(args: &[&dyn AsRef<OsStr>], needles: &[&str]) -> String {
         assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
     }
     err
-}
-
-/// The names in `dir`, sorted: what a run left behind.
-fn listing(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 #[test]
@@ -140,21 +130,6 @@ fn png_exr_and_stats_paths_must_differ() {
         &["cannot create the EXR"],
     );
     assert!(!p.exists());
-}
-
-/// `dcrt ARGS` under `ulimit -f BLOCKS` with SIGXFSZ ignored: writes past the limit fail with
-/// EFBIG, as on a full filesystem.
-fn limited(blocks: u32, args: &[&dyn AsRef<OsStr>]) -> std::process::Output {
-    let mut cmd = std::process::Command::new("bash");
-    cmd.arg("-c")
-        .arg(format!(
-            "ulimit -f {blocks}; trap '' XFSZ; exec \"$0\" \"$@\""
-        ))
-        .arg(env!("CARGO_BIN_EXE_dcrt"));
-    for a in args {
-        cmd.arg(a);
-    }
-    cmd.output().unwrap()
 }
 
 #[test]

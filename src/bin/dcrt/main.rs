@@ -64,6 +64,13 @@ struct PrepareArgs {
     bvh_preset: Preset,
     #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
     block_size: u32,
+    /// Memory the build may use, in binary units (4GiB, 512MiB); a model whose build in memory
+    /// needs more is built out of core, in parts that fit. Default: half the memory available.
+    #[arg(long)]
+    memory: Option<String>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 #[derive(Args, Clone)]
@@ -171,9 +178,13 @@ struct RenderArgs {
     /// PNG exposure in stops (the EXR stays linear).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     exposure: f32,
-    /// Print how far a frame is every this many seconds (a long render with many samples).
+    /// Off a terminal, print how far a frame is every this many seconds (a long render with
+    /// many samples); on a terminal a progress bar shows it.
     #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
     progress_every: f64,
+    /// No progress bar and no progress lines.
+    #[arg(long, short)]
+    quiet: bool,
     #[command(flatten)]
     shade: ShadeArgs,
     #[command(flatten)]
@@ -256,7 +267,8 @@ impl DcArgs {
 
 #[derive(Args)]
 struct BenchArgs {
-    /// Scene file; without it, a generated scene (--generator, --triangles).
+    /// Scene file, or a prepared block file (.dcb) to trace as it is; without it, a generated
+    /// scene (--generator, --triangles).
     scene: Option<PathBuf>,
     #[arg(long, default_value = "rm")]
     generator: String,
@@ -278,6 +290,9 @@ struct BenchArgs {
     /// One JSON object on stdout instead of the table.
     #[arg(long)]
     json: bool,
+    /// No progress bars (they are drawn on stderr when it is a terminal).
+    #[arg(long, short)]
+    quiet: bool,
     /// Shading modes to measure rays/s in (primary and secondary rays over the frame time);
     /// `ao` traces 4 rays per hit and `path` at most 3 bounces, to keep a frame short.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "cast")]

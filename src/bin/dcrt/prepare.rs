@@ -1,30 +1,64 @@
-//! `dcrt prepare`: a scene's BVH and blocks, built once into a block file.
+//! `dcrt prepare`: a scene's BVH and blocks, built once into a block file, in memory or out of
+//! core within `--memory`.
 
 use crate::PrepareArgs;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use dcrt::blocks::Format;
-use dcrt::render::Prepared;
+use dcrt::prepare::budget::Budget;
+use dcrt::prepare::{Options, prepare as run};
+use dcrt::progress::Progress;
 use dcrt::scene::Scene;
 
 pub fn prepare(a: PrepareArgs) -> Result<()> {
+    // Options first, then the paths, then the work.
+    let budget = match &a.memory {
+        Some(m) => Budget::parse(m)?,
+        None => Budget::default_for_machine(),
+    };
+    let format = Format::new(a.block_size)?;
     let inputs = Scene::input_files(&a.scene)?;
     dcrt::output::check_outputs(&[("block file", &a.output, 1)], &inputs)?;
-    let format = Format::new(a.block_size)?;
     let scene = Scene::load(&a.scene)?;
-    let p = Prepared::new(&scene, a.bvh_preset, format)?;
-    let camera = scene.camera_or_default(&p.model);
-    let meta = p.meta(&scene, camera, scene.width, scene.height);
-    // Written beside the target and renamed into place: a failed write leaves no half file.
-    dcrt::blocks::file::write(&a.output, &p.blocks, &meta)?;
+    let o = Options {
+        preset: a.bvh_preset,
+        format,
+        budget,
+        progress: Progress { quiet: a.quiet },
+    };
+    let r =
+        run(&scene, &a.output, &o).with_context(|| format!("preparing {}", a.output.display()))?;
+    let how = match r.parts {
+        None => "in memory".to_string(),
+        Some(p) => format!(
+            "out of core in {} part{} (the largest {} of at most {} triangles; --memory {} MiB)",
+            p.count,
+            if p.count == 1 { "" } else { "s" },
+            p.largest,
+            p.capacity,
+            budget.bytes >> 20
+        ),
+    };
     eprintln!(
-        "{} triangles, {} node + {} triangle blocks of {} bytes ({} MiB), BVH depth {}, wrote {}",
-        p.model.triangles.len(),
-        p.blocks.node_blocks,
-        p.blocks.tri_blocks,
-        format.block_bytes,
-        p.blocks.bytes() >> 20,
-        p.bvh.depth,
+        "{} triangles, {} node + {} triangle blocks of {} bytes ({} MiB), BVH depth {}, built {how} \
+         in {:.1} s, wrote {}",
+        r.triangles,
+        r.node_blocks,
+        r.tri_blocks,
+        r.block_bytes,
+        r.bytes() >> 20,
+        r.depth,
+        r.seconds,
         a.output.display()
+    );
+    let phases: Vec<String> = r
+        .phases
+        .iter()
+        .map(|(name, s)| format!("{name} {s:.1} s"))
+        .collect();
+    eprintln!(
+        "  {}; {:.2} M triangles/s",
+        phases.join(", "),
+        r.triangles as f64 / r.seconds / 1e6
     );
     Ok(())
 }

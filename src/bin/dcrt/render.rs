@@ -8,6 +8,7 @@ use dcrt::blocks::Format;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::Settings;
 use dcrt::output;
+use dcrt::progress::{Progress, say};
 use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
 use dcrt::render::{Loaded, memory, mib};
 use dcrt::scene::{Scene, check_image_size};
@@ -109,15 +110,28 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
         }
         None => eprintln!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
     }
-    // A frame that takes long says how far it is, no more often than --progress-every.
-    let every = std::time::Duration::from_secs_f64(a.progress_every);
-    let mut last = std::time::Instant::now();
-    tracer.set_progress(Some(Box::new(move |done, total| {
-        if done < total && last.elapsed() >= every {
-            last = std::time::Instant::now();
-            eprintln!("  {done} of {total} sample passes");
-        }
-    })));
+    // How far the render is: a bar over every frame's sample passes on a terminal; elsewhere a
+    // long frame's line no more often than --progress-every; nothing with --quiet.
+    let progress = Progress { quiet: a.quiet };
+    let bar = progress.bar(u64::from(a.frames), "rendering");
+    let frames_done = std::rc::Rc::new(std::cell::Cell::new(0u32));
+    if bar.is_hidden() {
+        let every = std::time::Duration::from_secs_f64(a.progress_every);
+        let mut last = std::time::Instant::now();
+        let quiet = a.quiet;
+        tracer.set_progress(Some(Box::new(move |done, total| {
+            if !quiet && done < total && last.elapsed() >= every {
+                last = std::time::Instant::now();
+                eprintln!("  {done} of {total} sample passes");
+            }
+        })));
+    } else {
+        let (bar, frames_done, frames) = (bar.clone(), frames_done.clone(), a.frames);
+        tracer.set_progress(Some(Box::new(move |done, total| {
+            bar.set_length(u64::from(frames) * total);
+            bar.set_position(u64::from(frames_done.get()) * total + done);
+        })));
+    }
     let plan = FramePlan {
         frames: a.frames,
         view: View::Orbit(loaded.camera),
@@ -144,35 +158,40 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                 let exr = numbered(exr);
                 output::write_exr(&exr, &frame, &a.aov)?;
             }
-            eprintln!(
-                "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
-                shading.mode.name(),
-                shading.spp,
-                loaded.triangles,
-                loaded
-                    .build_seconds
-                    .filter(|_| i == 0)
-                    .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
-                    .unwrap_or_default(),
-                width,
-                height,
-                stats.seconds * 1e3,
-                stats.max_live_rounds,
-                if dc.is_some() {
-                    format!(
-                        ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
-                        stats.fault_rounds,
-                        hit_rate(stats),
-                        stats.fetched_blocks
-                    )
-                } else {
-                    String::new()
-                },
-                png.display()
+            frames_done.set(i + 1);
+            say(
+                &bar,
+                format!(
+                    "frame {i}: {} {} spp, {} triangles{}, {}x{} in {:.1} ms, {} rounds{}, wrote {}",
+                    shading.mode.name(),
+                    shading.spp,
+                    loaded.triangles,
+                    loaded
+                        .build_seconds
+                        .filter(|_| i == 0)
+                        .map(|s| format!(", BVH {:.0} ms (depth {})", s * 1e3, loaded.depth))
+                        .unwrap_or_default(),
+                    width,
+                    height,
+                    stats.seconds * 1e3,
+                    stats.max_live_rounds,
+                    if dc.is_some() {
+                        format!(
+                            ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
+                            stats.fault_rounds,
+                            hit_rate(stats),
+                            stats.fetched_blocks
+                        )
+                    } else {
+                        String::new()
+                    },
+                    png.display()
+                ),
             );
             Ok(())
         },
     )?;
+    bar.finish_and_clear();
     if let Some(path) = &a.cluster.stats {
         let frames: Vec<_> = report
             .iter()

@@ -8,10 +8,12 @@
 //! fits in the capsule of radius [`PART_RADIUS`] around the same axis.
 //!
 //! The parts are laid out first, sequentially with a seeded generator (cheap: a few numbers per
-//! part), until their exact triangle counts reach the target; then the output is allocated once
-//! at its final size and the parts are tessellated into disjoint slices of it in parallel.
+//! part), until their exact triangle counts reach the target; then the parts are tessellated in
+//! groups of about equal triangle counts, a few groups in parallel at a time, and appended to the
+//! mesh in order (or handed on as pieces, `assembly_pieces`).
 
 use super::SplitMix64;
+use crate::error::Result;
 use crate::scene::mesh::Mesh;
 use rayon::prelude::*;
 use std::f64::consts::{PI, TAU};
@@ -39,6 +41,18 @@ pub fn assembly(triangles: u64, seed: u64) -> Mesh {
     built.mesh
 }
 
+/// The same model as [`assembly`], handed to `piece` in pieces that are meshes of their own: the
+/// skin, then groups of parts, in order; the pieces' triangles, in order, are `assembly`'s. Only
+/// a few groups are tessellated at a time, so no whole model is held. An error of `piece` stops
+/// the tessellation and is returned.
+pub fn assembly_pieces(
+    triangles: u64,
+    seed: u64,
+    piece: &mut dyn FnMut(&Mesh) -> Result<()>,
+) -> Result<()> {
+    Plan::new(triangles, seed).pieces(piece)
+}
+
 struct Built {
     mesh: Mesh,
     shell_vertices: usize,
@@ -46,77 +60,123 @@ struct Built {
 }
 
 fn build(triangles: u64, seed: u64) -> Built {
-    let target = triangles.max(1000) as f64;
-    let shell = Shell::for_target(target);
-    let budget = (target - shell.triangles() as f64).max(0.0) as u64;
-    let parts = layout(budget, target, seed);
-    let (sv, st) = (shell.vertices(), shell.triangles());
-    let mut vertex_start = Vec::with_capacity(parts.len() + 1);
-    let mut triangle_start = Vec::with_capacity(parts.len() + 1);
-    let (mut v, mut t) = (sv as u64, st as u64);
-    for p in &parts {
-        vertex_start.push(v);
-        triangle_start.push(t);
-        let (pv, pt) = p.counts();
-        v += pv as u64;
-        t += pt as u64;
+    let plan = Plan::new(triangles, seed);
+    let (v, t) = plan.totals();
+    let mut mesh = Mesh {
+        positions: Vec::with_capacity(v),
+        triangles: Vec::with_capacity(t),
+    };
+    let appended = plan.pieces(&mut |piece| {
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend_from_slice(&piece.positions);
+        let tris = piece.triangles.iter().map(|t| t.map(|i| base + i));
+        mesh.triangles.extend(tris);
+        Ok(())
+    });
+    assert!(appended.is_ok(), "{appended:?}");
+    Built {
+        mesh,
+        shell_vertices: plan.shell.vertices(),
+        shell_triangles: plan.shell.triangles(),
     }
-    vertex_start.push(v);
-    triangle_start.push(t);
-    assert!(
-        v <= u64::from(u32::MAX),
-        "too many vertices for 32-bit indices"
-    );
-    let mut positions = vec![[0.0f32; 3]; v as usize];
-    let mut tris = vec![[0u32; 3]; t as usize];
+}
 
-    // Groups of parts with about equal triangle counts, each writing its own slices.
-    let groups = (parts.len() / 64).clamp(1, 4096);
-    let mut bounds = vec![0usize];
-    for g in 1..groups {
-        let goal = st as u64 + (t - st as u64) * g as u64 / groups as u64;
-        let at = triangle_start
-            .partition_point(|&s| s < goal)
-            .min(parts.len());
-        if at > *bounds.last().unwrap_or(&0) {
-            bounds.push(at);
+/// The skin and the parts laid out, cut into groups of parts with about equal triangle counts
+/// (the pieces that are tessellated in parallel).
+struct Plan {
+    shell: Shell,
+    parts: Vec<Part>,
+    /// Group g holds parts `groups[g]..groups[g + 1]`.
+    groups: Vec<usize>,
+}
+
+impl Plan {
+    fn new(triangles: u64, seed: u64) -> Plan {
+        let target = triangles.max(1000) as f64;
+        let shell = Shell::for_target(target);
+        let budget = (target - shell.triangles() as f64).max(0.0) as u64;
+        let parts = layout(budget, target, seed);
+        let mut triangle_start = Vec::with_capacity(parts.len() + 1);
+        let (mut v, mut t) = (shell.vertices() as u64, shell.triangles() as u64);
+        for p in &parts {
+            triangle_start.push(t);
+            let (pv, pt) = p.counts();
+            v += pv as u64;
+            t += pt as u64;
+        }
+        assert!(
+            v <= u64::from(u32::MAX),
+            "too many vertices for 32-bit indices"
+        );
+        let st = shell.triangles() as u64;
+        let count = (parts.len() / 64).clamp(1, 4096);
+        let mut groups = vec![0usize];
+        for g in 1..count {
+            let goal = st + (t - st) * g as u64 / count as u64;
+            let at = triangle_start
+                .partition_point(|&s| s < goal)
+                .min(parts.len());
+            if at > *groups.last().unwrap_or(&0) {
+                groups.push(at);
+            }
+        }
+        groups.push(parts.len());
+        Plan {
+            shell,
+            parts,
+            groups,
         }
     }
-    bounds.push(parts.len());
-    let (shell_pos, mut pos_rest) = positions.split_at_mut(sv);
-    let (shell_tris, mut tri_rest) = tris.split_at_mut(st);
-    let mut jobs = Vec::with_capacity(bounds.len());
-    for w in bounds.windows(2) {
-        let (a, b) = (w[0], w[1]);
-        let nv = (vertex_start[b] - vertex_start[a]) as usize;
-        let nt = (triangle_start[b] - triangle_start[a]) as usize;
-        let (p, pr) = pos_rest.split_at_mut(nv);
-        let (q, qr) = tri_rest.split_at_mut(nt);
-        pos_rest = pr;
-        tri_rest = qr;
-        jobs.push((&parts[a..b], vertex_start[a] as u32, p, q));
+
+    /// Vertices and triangles in all.
+    fn totals(&self) -> (usize, usize) {
+        let (v, t) = self.parts.iter().map(Part::counts).fold(
+            (self.shell.vertices(), self.shell.triangles()),
+            |(v, t), (pv, pt)| (v + pv, t + pt),
+        );
+        (v, t)
     }
-    rayon::join(
-        || shell.write(shell_pos, shell_tris),
-        || {
-            jobs.into_par_iter().for_each(|(group, base, p, q)| {
-                let (mut vo, mut to) = (0, 0);
-                for part in group {
-                    let (nv, nt) = part.counts();
-                    part.write(&mut p[vo..vo + nv], &mut q[to..to + nt], base + vo as u32);
-                    vo += nv;
-                    to += nt;
-                }
-            })
-        },
-    );
-    Built {
-        mesh: Mesh {
-            positions,
-            triangles: tris,
-        },
-        shell_vertices: sv,
-        shell_triangles: st,
+
+    /// Group `g` tessellated as a mesh of its own.
+    fn group(&self, g: usize) -> Mesh {
+        let parts = &self.parts[self.groups[g]..self.groups[g + 1]];
+        let (nv, nt) = parts
+            .iter()
+            .map(Part::counts)
+            .fold((0, 0), |(v, t), (pv, pt)| (v + pv, t + pt));
+        let mut m = Mesh {
+            positions: vec![[0.0; 3]; nv],
+            triangles: vec![[0; 3]; nt],
+        };
+        let (mut vo, mut to) = (0, 0);
+        for part in parts {
+            let (pv, pt) = part.counts();
+            let (p, q) = (&mut m.positions[vo..vo + pv], &mut m.triangles[to..to + pt]);
+            part.write(p, q, vo as u32);
+            vo += pv;
+            to += pt;
+        }
+        m
+    }
+
+    /// The skin, then the groups in order, a few tessellated in parallel at a time.
+    fn pieces(&self, piece: &mut dyn FnMut(&Mesh) -> Result<()>) -> Result<()> {
+        let mut skin = Mesh {
+            positions: vec![[0.0; 3]; self.shell.vertices()],
+            triangles: vec![[0; 3]; self.shell.triangles()],
+        };
+        self.shell.write(&mut skin.positions, &mut skin.triangles);
+        piece(&skin)?;
+        drop(skin);
+        let window = 2 * rayon::current_num_threads().max(1);
+        let groups: Vec<usize> = (0..self.groups.len() - 1).collect();
+        for batch in groups.chunks(window) {
+            let meshes: Vec<Mesh> = batch.par_iter().map(|&g| self.group(g)).collect();
+            for m in &meshes {
+                piece(m)?;
+            }
+        }
+        Ok(())
     }
 }
 

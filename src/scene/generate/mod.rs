@@ -6,9 +6,10 @@
 pub mod assembly;
 pub mod rm;
 
-pub use assembly::assembly;
-pub use rm::rm;
+pub use assembly::{assembly, assembly_pieces};
+pub use rm::{rm, rm_pieces};
 
+use crate::error::Result;
 use crate::scene::mesh::Mesh;
 
 /// A named procedural model.
@@ -60,6 +61,21 @@ impl Generator {
         match self {
             Generator::Rm => rm(triangles, seed),
             Generator::Assembly => assembly(triangles, seed),
+        }
+    }
+
+    /// The same model as `generate`, handed to `piece` in pieces that are meshes of their own,
+    /// in order (their triangles, in order, are `generate`'s), never holding the whole model. An
+    /// error of `piece` stops the generator and is returned.
+    pub fn pieces(
+        &self,
+        triangles: u64,
+        seed: u64,
+        piece: &mut dyn FnMut(&Mesh) -> Result<()>,
+    ) -> Result<()> {
+        match self {
+            Generator::Rm => rm_pieces(triangles, seed, piece),
+            Generator::Assembly => assembly_pieces(triangles, seed, piece),
         }
     }
 
@@ -137,6 +153,33 @@ mod tests {
                     "{} at {target}: ratio {r}",
                     g.name()
                 );
+            }
+        }
+    }
+
+    /// The pieces, in order, hold the whole model's triangles corner for corner; the larger
+    /// targets come in several pieces.
+    #[test]
+    fn pieces_are_the_model_in_order() {
+        for g in Generator::ALL {
+            for target in [5_000u64, 300_000] {
+                let whole = g.generate(target, 3);
+                let bits = |c: [[f32; 3]; 3]| c.map(|p| p.map(f32::to_bits));
+                let want: Vec<_> = (0..whole.triangle_count())
+                    .map(|i| bits(whole.corners(i)))
+                    .collect();
+                let (mut got, mut pieces) = (Vec::new(), 0);
+                g.pieces(target, 3, &mut |m| {
+                    m.validate(std::path::Path::new(g.name()))?;
+                    got.extend((0..m.triangle_count()).map(|i| bits(m.corners(i))));
+                    pieces += 1;
+                    Ok(())
+                })
+                .unwrap();
+                assert!(got == want, "{} at {target}: pieces differ", g.name());
+                if target >= 300_000 {
+                    assert!(pieces > 4, "{} at {target}: {pieces} pieces", g.name());
+                }
             }
         }
     }

@@ -15,7 +15,7 @@ mod fixtures;
 mod header;
 
 use crate::error::{Error, Result};
-use crate::scene::mesh::Mesh;
+use crate::scene::mesh::{Mesh, Piece};
 use ascii::read_ascii;
 use binary::read_binary;
 use header::{Format, Header, Target};
@@ -39,7 +39,28 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
 /// Polygons are fan-triangulated in order, (v0,v1,v2), (v0,v2,v3), ..., so triangle ids follow
 /// file order. Header errors name the header line; data errors name the element and its index
 /// (and the line, for ascii files).
-pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
+pub fn parse_ply<R: BufRead>(reader: R, origin: &Path) -> Result<Mesh> {
+    read_ply(reader, origin, None)
+}
+
+/// Reads the PLY file at `path` as `load_ply` does, handing its triangles to `piece` with the
+/// vertices, `PIECE` at a time, so that the triangles are never all held: every vertex is kept
+/// (a face may use any), so a file of more than `max_vertices` vertices is refused at its
+/// header. Faces written before the vertices are held until the vertices are read.
+pub fn stream_ply(path: &Path, max_vertices: u64, piece: &mut Piece) -> Result<()> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = BufReader::with_capacity(1 << 18, file);
+    read_ply(&mut reader, path, Some((max_vertices, piece))).map(drop)
+}
+
+/// Triangles handed on at a time when streaming.
+const PIECE: usize = 1 << 16;
+
+fn read_ply<'a, 'p, R: BufRead>(
+    mut reader: R,
+    origin: &Path,
+    stream: Option<(u64, &'a mut Piece<'p>)>,
+) -> Result<Mesh> {
     let header = Header::read(&mut reader, origin)?;
     let count = |target| {
         header
@@ -49,6 +70,18 @@ pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
             .map_or(0, |e| e.count)
     };
     let vertex_count = count(Target::Vertices);
+    if let Some((max, _)) = &stream
+        && vertex_count > *max
+    {
+        return Err(Error::format(
+            origin,
+            None,
+            format!(
+                "{vertex_count} vertices: more than the {max} the memory budget holds (every \
+                 vertex of a mesh file is kept while its faces are read); raise --memory"
+            ),
+        ));
+    }
     let mut b = Builder {
         mesh: Mesh {
             positions: Vec::with_capacity(vertex_count.min(MAX_RESERVE) as usize),
@@ -57,25 +90,65 @@ pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
         vertex_count,
         xyz: [0.0; 3],
         poly: Vec::new(),
+        piece: stream.map(|s| s.1),
+        failed: None,
     };
-    match header.format {
-        Format::Ascii => read_ascii(&mut reader, &header, &mut b, origin)?,
+    let read = match header.format {
+        Format::Ascii => read_ascii(&mut reader, &header, &mut b, origin),
         Format::Binary { big_endian } => {
-            read_binary(&mut reader, &header, big_endian, &mut b, origin)?;
+            read_binary(&mut reader, &header, big_endian, &mut b, origin)
         }
+    };
+    // A failure of the piece's consumer is reported as itself, not as bad data.
+    if let Some(e) = b.failed.take() {
+        return Err(e);
+    }
+    read?;
+    if b.flush(true).is_err() {
+        return Err(b.failed.take().unwrap_or_else(|| {
+            Error::Internal("a streamed PLY's consumer failed without an error".into())
+        }));
     }
     Ok(b.mesh)
 }
 
-/// Collects decoded values into the mesh, one record at a time.
-struct Builder {
+/// Collects decoded values into the mesh, one record at a time; when streaming, hands on the
+/// triangles a piece at a time.
+struct Builder<'a, 'p> {
     mesh: Mesh,
     vertex_count: u64,
     xyz: [f64; 3],
     poly: Vec<u32>,
+    piece: Option<&'a mut Piece<'p>>,
+    /// What the piece's consumer failed with.
+    failed: Option<Error>,
 }
 
-impl Builder {
+impl Builder<'_, '_> {
+    /// Hands the triangles read so far on, when streaming and every vertex has been read (at
+    /// the end, `last`, whatever is left). `Err` when the consumer failed: its error is in
+    /// `failed`.
+    fn flush(&mut self, last: bool) -> std::result::Result<(), ()> {
+        let Some(piece) = &mut self.piece else {
+            return Ok(());
+        };
+        let ready = self.mesh.positions.len() as u64 == self.vertex_count;
+        if self.mesh.triangles.is_empty() || !ready || (!last && self.mesh.triangles.len() < PIECE)
+        {
+            return Ok(());
+        }
+        match piece(&self.mesh.positions, &self.mesh.triangles) {
+            Ok(()) => {
+                self.mesh.triangles.clear();
+                Ok(())
+            }
+            Err(e) => {
+                self.failed = Some(e);
+                Err(())
+            }
+        }
+    }
+
     #[inline]
     fn index(&mut self, v: f64) -> std::result::Result<(), String> {
         // Also rejects negative values; the header limits vertex_count to u32 range.
@@ -113,6 +186,8 @@ impl Builder {
                     self.mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
                 }
                 self.poly.clear();
+                self.flush(false)
+                    .map_err(|()| "the triangles read could not be passed on".to_string())?;
             }
             Target::Other => {}
         }
@@ -382,6 +457,84 @@ mod tests {
             if let Ok(mesh) = result {
                 mesh.validate(Path::new("fuzz.ply")).unwrap();
             }
+        }
+    }
+
+    /// An n x n grid of vertices and its quads in `format`, faces first or last.
+    fn grid_ply(format: &str, n: usize, faces_first: bool) -> Vec<u8> {
+        let vertices = El {
+            name: "vertex",
+            props: vec![P::S("float", "x"), P::S("float", "y"), P::S("float", "z")],
+            rows: (0..n * n)
+                .map(|i| vec![(i % n) as f64, (i / n) as f64, 0.5])
+                .collect(),
+        };
+        let mut rows = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = (y * n + x) as f64;
+                rows.push(vec![4.0, v, v + 1.0, v + n as f64 + 1.0, v + n as f64]);
+            }
+        }
+        let faces = El {
+            name: "face",
+            props: vec![P::L("uchar", "int", "vertex_indices")],
+            rows,
+        };
+        let els = if faces_first {
+            vec![faces, vertices]
+        } else {
+            vec![vertices, faces]
+        };
+        write_ply(format, &els)
+    }
+
+    /// Streaming hands on the triangles of the whole-file parse, in order, in pieces (one piece
+    /// when the faces come before the vertices); too many vertices are refused at the header; a
+    /// consumer's failure comes back as itself.
+    #[test]
+    fn streaming_hands_on_the_parsed_triangles_in_pieces() {
+        for format in FORMATS {
+            for faces_first in [false, true] {
+                let bytes = grid_ply(format, 200, faces_first);
+                let whole = parse(&bytes).unwrap();
+                let want: Vec<_> = (0..whole.triangle_count())
+                    .map(|i| whole.corners(i).map(|p| p.map(f32::to_bits)))
+                    .collect();
+                let (mut got, mut pieces) = (Vec::new(), 0);
+                read_ply(
+                    &bytes[..],
+                    Path::new("s.ply"),
+                    Some((u64::MAX, &mut |pos: &[[f32; 3]], t: &[[u32; 3]]| {
+                        got.extend(
+                            t.iter()
+                                .map(|x| x.map(|v| pos[v as usize].map(f32::to_bits))),
+                        );
+                        pieces += 1;
+                        Ok(())
+                    })),
+                )
+                .unwrap();
+                assert!(got == want, "{format}: streamed triangles differ");
+                assert_eq!(pieces, if faces_first { 1 } else { 2 }, "{format}");
+            }
+            let bytes = grid_ply(format, 200, false);
+            let mut none = |_: &[[f32; 3]], _: &[[u32; 3]]| Ok(());
+            let e = read_ply(&bytes[..], Path::new("s.ply"), Some((1000, &mut none)))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("40000 vertices") && e.contains("raise --memory"),
+                "{e}"
+            );
+            let mut calls = 0;
+            let mut fail = |_: &[[f32; 3]], _: &[[u32; 3]]| {
+                calls += 1;
+                Err(Error::Invalid("disk full".into()))
+            };
+            let e =
+                read_ply(&bytes[..], Path::new("s.ply"), Some((u64::MAX, &mut fail))).unwrap_err();
+            assert_eq!((calls, e.to_string()), (1, "disk full".to_string()));
         }
     }
 }

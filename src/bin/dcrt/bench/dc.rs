@@ -7,6 +7,7 @@ use anyhow::{Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
+use dcrt::progress::Progress;
 use dcrt::render::frames::View;
 use dcrt::render::{DcOptions, Prepared, mib};
 use dcrt::scene::{Camera, Model, Scene};
@@ -90,12 +91,14 @@ pub fn run(
         }
     }
     let mut rows = Vec::new();
+    let bar = Progress { quiet: a.quiet }.bar(configs.len() as u64, "cache configurations");
     for (cfg, cache_name) in configs.iter().zip(
         std::iter::once(None).chain(
             MAPS.iter()
                 .flat_map(|_| a.caches.iter().map(|c| Some(c.clone()))),
         ),
     ) {
+        bar.inc(1);
         let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
         let size = (a.width, a.height);
         let all = frame_stats(

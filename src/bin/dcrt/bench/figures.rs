@@ -14,6 +14,7 @@ use dcrt::blocks::Format;
 use dcrt::cluster::Roles;
 use dcrt::cluster::bench::{Plan, Transport};
 use dcrt::dc::{CacheSize, Ranks};
+use dcrt::progress::{Progress, say};
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
 use dcrt::traces::Traces;
@@ -155,6 +156,8 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         figure8: Vec::new(),
     };
     let mut display_model = None;
+    let jobs = MODELS.len() * caches.len() * a.ranks.len() * a.runs;
+    let bar = Progress { quiet: a.quiet }.bar(jobs as u64, "traced jobs");
     for g in MODELS {
         let name = g.name().to_string();
         let scene = Scene::generated(g, triangles, width, height);
@@ -164,10 +167,13 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         dcrt::blocks::file::write(&dcb, &p.blocks, &p.meta(&scene, camera, width, height))?;
         let blocks = p.blocks.count();
         figs.model_mib.push((name.clone(), mib(p.blocks.bytes())));
-        eprintln!(
-            "{name}: {} triangles, {:.1} MiB of blocks",
-            p.model.triangles.len(),
-            mib(p.blocks.bytes())
+        say(
+            &bar,
+            format!(
+                "{name}: {} triangles, {:.1} MiB of blocks",
+                p.model.triangles.len(),
+                mib(p.blocks.bytes())
+            ),
         );
         let mut traced = Vec::new();
         for cache in &caches {
@@ -181,6 +187,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
                     let _ = std::fs::remove_dir_all(&traces);
                     let png = runs.join(format!("{tag}.png"));
                     job(&exe, k, &dcb, cache, &traces, &png, a)?;
+                    bar.inc(1);
                     let t = Traces::read(&traces)?;
                     let own = simulate(&t, &model(k, None, None, 0.0))?;
                     let measured = own.measured_mean_frame_ms.ok_or_else(|| {

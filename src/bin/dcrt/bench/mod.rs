@@ -89,6 +89,21 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     if let Some(dir) = &a.figures {
         return figures::run(&a, dir);
     }
+    if let Some(path) = a
+        .scene
+        .as_ref()
+        .filter(|p| p.extension().is_some_and(|e| e == "dcb"))
+    {
+        if a.dc || a.cluster || a.soak.is_some() {
+            bail!(
+                "{}: --dc, --cluster and --soak build their models from a scene; a block file is \
+                 benched as it is (primary rays per store and mode)",
+                path.display()
+            );
+        }
+        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+        return trace::run_file(&a, &gpu, path);
+    }
     let scene = match &a.scene {
         Some(p) => Scene::load(p)?,
         None => {

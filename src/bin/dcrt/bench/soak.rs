@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::Gpu;
+use dcrt::progress::Progress;
 use dcrt::render::frames::{FramePlan, Role, View, run_images};
 use dcrt::render::memory::resident;
 use dcrt::render::{DcOptions, Prepared, mib};
@@ -99,6 +100,7 @@ pub fn run(
         role: Role::one_process(&tracer),
         trace_dir: None,
     };
+    let bar = Progress { quiet: a.quiet }.bar(u64::from(frames), "soak frames");
     let table = Table(&[("frame", 7), ("seconds", 9), ("RSS MiB", 9)]);
     if !a.json {
         table.header();
@@ -111,14 +113,17 @@ pub fn run(
         scene.background,
         &mut |i, frame, _| {
             std::hint::black_box(dcrt::output::to_rgb8(&frame));
+            bar.inc(1);
             if i % every == 0 || i + 1 == frames {
                 let s = sample(i)?;
                 if !a.json {
-                    table.row(&[
-                        s.frame.to_string(),
-                        format!("{:.1}", s.seconds),
-                        format!("{:.1}", mib(s.rss_bytes)),
-                    ]);
+                    bar.suspend(|| {
+                        table.row(&[
+                            s.frame.to_string(),
+                            format!("{:.1}", s.seconds),
+                            format!("{:.1}", mib(s.rss_bytes)),
+                        ])
+                    });
                 }
                 samples.push(s);
             }

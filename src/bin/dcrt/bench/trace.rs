@@ -10,6 +10,7 @@ use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{Settings, Tracer};
+use dcrt::progress::Progress;
 use dcrt::render::Prepared;
 use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
@@ -87,6 +88,21 @@ struct BenchReport {
     rows: Vec<BenchRow>,
 }
 
+/// The block stores and shading modes each tree is measured with.
+fn stores_and_modes(a: &BenchArgs) -> (Vec<Store>, Vec<Mode>) {
+    let stores = if a.stores {
+        Store::ALL.to_vec()
+    } else {
+        vec![a.gpu.store]
+    };
+    let modes = if a.modes.is_empty() {
+        vec![Mode::Cast]
+    } else {
+        a.modes.clone()
+    };
+    (stores, modes)
+}
+
 fn shading_for(mode: Mode) -> Shading {
     Shading {
         mode,
@@ -115,19 +131,19 @@ pub fn run(
         vec![a.gpu.bvh_preset]
     };
     let mut rows = Vec::new();
-    let stores = if a.stores {
-        Store::ALL.to_vec()
-    } else {
-        vec![a.gpu.store]
-    };
-    let modes = if a.modes.is_empty() {
-        vec![Mode::Cast]
-    } else {
-        a.modes.clone()
-    };
+    let (stores, modes) = stores_and_modes(a);
     let mut peer_ids = None;
+    let bar = Progress { quiet: a.quiet }.bar(
+        (presets.len() * stores.len() * modes.len()) as u64,
+        "bench rows",
+    );
     for preset in presets {
         let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
+        let tree = Tree {
+            name: format!("{preset:?}").to_lowercase(),
+            build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
+            depth: prepared.bvh.depth,
+        };
         for &store in &stores {
             let s = Settings {
                 store,
@@ -136,12 +152,13 @@ pub fn run(
             let mut tracer = prepared.tracer(gpu, s)?;
             for &mode in &modes {
                 tracer.set_shading(shading_for(mode))?;
+                bar.inc(1);
                 rows.push(measure(
                     a,
                     &mut tracer,
-                    scene,
+                    scene.background,
                     camera,
-                    (&prepared, preset),
+                    &tree,
                     store,
                     mode,
                 )?);
@@ -154,6 +171,7 @@ pub fn run(
             }
         }
     }
+    bar.finish_and_clear();
     let main_row = rows
         .iter()
         .find(|r| {
@@ -192,30 +210,95 @@ pub fn run(
     emit(a.json, &report, print)
 }
 
+/// The tree a row traces: the preset it was built with (or `file`), its build time and depth.
+struct Tree {
+    name: String,
+    build_ms: f64,
+    depth: u32,
+}
+
+/// A prepared block file traced as it is (its tree fixed, so no presets and no peer), per store
+/// and mode: the same rows as a scene's, its file name as the preset.
+pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
+    if a.bvh_presets || a.peer.is_some() {
+        bail!(
+            "{}: a block file holds its BVH; --bvh-presets and --peer need a scene",
+            path.display()
+        );
+    }
+    let loaded = dcrt::render::Loaded::from_dcb(path, None)?;
+    let tree = Tree {
+        name: "file".into(),
+        build_ms: 0.0,
+        depth: loaded.depth,
+    };
+    let (stores, modes) = stores_and_modes(a);
+    let mut rows = Vec::new();
+    for &store in &stores {
+        let s = Settings {
+            store,
+            ..settings(&a.gpu)
+        };
+        let mut tracer = loaded.tracer(gpu, s, None)?;
+        for &mode in &modes {
+            tracer.set_shading(shading_for(mode))?;
+            rows.push(measure(
+                a,
+                &mut tracer,
+                loaded.background,
+                loaded.camera,
+                &tree,
+                store,
+                mode,
+            )?);
+        }
+    }
+    let main = &rows[0];
+    let report = BenchReport {
+        adapter: gpu.describe(),
+        scene: path.display().to_string(),
+        triangles: loaded.triangles as usize,
+        width: a.width,
+        height: a.height,
+        runs: a.runs,
+        bvh_preset: main.preset.clone(),
+        bvh_build_ms: 0.0,
+        trace_ms_median: main.trace_ms_median,
+        mrays_per_s: main.mrays_per_s,
+        steps_per_ray: main.steps_per_ray,
+        nodes_per_node_block: main.nodes_per_node_block,
+        node_blocks_per_ray: main.node_blocks_per_ray,
+        tri_blocks_per_ray: main.tri_blocks_per_ray,
+        peer: None,
+        rows: Vec::new(),
+    };
+    emit(a.json, &BenchReport { rows, ..report }, print)
+}
+
 /// One row: a warm-up frame (pipeline compilation, first touch of buffers), then `--runs`.
 fn measure(
     a: &BenchArgs,
     tracer: &mut Tracer<'_>,
-    scene: &Scene,
+    background: [f32; 3],
     camera: Camera,
-    (prepared, preset): (&Prepared, Preset),
+    tree: &Tree,
     store: Store,
     mode: Mode,
 ) -> Result<BenchRow> {
     let frames = u32::try_from(a.runs).map_or(u32::MAX, |r| r.saturating_add(1));
     let size = (a.width, a.height);
-    let runs = frame_stats(tracer, View::Fixed(camera), frames, size, scene.background)?;
+    let runs = frame_stats(tracer, View::Fixed(camera), frames, size, background)?;
     let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
     let s = runs.last().cloned().unwrap_or_default();
     let med = median(&mut times);
     let rays = s.rays + s.secondary_rays;
     let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
     Ok(BenchRow {
-        preset: format!("{preset:?}").to_lowercase(),
+        preset: tree.name.clone(),
         store,
         mode,
-        bvh_build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
-        bvh_depth: prepared.bvh.depth,
+        bvh_build_ms: tree.build_ms,
+        bvh_depth: tree.depth,
         trace_ms_median: med,
         trace_ms_min: times[0],
         trace_ms_max: times[times.len() - 1],

@@ -1,15 +1,20 @@
 //! Extraction in chunks of layers: worker threads take chunks in order, and each finished chunk
-//! is appended to the mesh as soon as its predecessors are, its seam vertices resolved.
+//! is handed on as soon as its predecessors are: appended to the mesh, its seam vertices
+//! resolved, or passed on as a piece of its own (`stream`).
 
 use super::march::{Plane, eval_plane, march_layer, scan_cross, scan_plane};
 use super::tables::tables;
 use super::{ColumnField, Grid};
+use crate::error::{Error, Result};
 use crate::scene::mesh::Mesh;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
 
 /// Marks a vertex index that belongs to the next chunk's first plane.
 pub(super) const TAG: u32 = 1 << 31;
+/// Bytes per triangle of a finished chunk: 12 of indices, about 6 of positions, and its piece.
+const CHUNK_BYTES_PER_TRIANGLE: f64 = 20.0;
+/// Finished chunks held at most, in bytes (besides each worker's own).
+const IN_FLIGHT_BYTES: usize = 256 << 20;
 
 /// A worker's buffers: two planes, the layer's crossing-edge indices (+x, +x+y, +x+z, +x+y+z)
 /// and bit masks of the valid nodes / cells in a row.
@@ -51,9 +56,30 @@ pub(super) struct ChunkOut {
     pub(super) triangles: Vec<[u32; 3]>,
     /// Vertices on the first plane (numbered first, in scan order).
     pub(super) first_plane: u32,
-    /// Vertices referenced on the next chunk's first plane.
-    pub(super) foreign: u32,
+    /// The vertices on the next chunk's first plane, which it owns, in its numbering: tagged
+    /// index `TAG | i` is `far[i]`.
+    pub(super) far: Vec<[f32; 3]>,
     pub(super) count: u64,
+}
+
+impl ChunkOut {
+    /// The chunk's triangles as a mesh of their own: its vertices, then its copies of the next
+    /// chunk's.
+    fn piece(mut self) -> Mesh {
+        let own = self.positions.len() as u32;
+        for t in &mut self.triangles {
+            for v in t {
+                if *v & TAG != 0 {
+                    *v = own + (*v & !TAG);
+                }
+            }
+        }
+        self.positions.extend_from_slice(&self.far);
+        Mesh {
+            positions: self.positions,
+            triangles: self.triangles,
+        }
+    }
 }
 
 /// Layers i0..i1 (cells between x-planes i0 and i1). With `emit`, the mesh of those layers,
@@ -99,83 +125,177 @@ pub(super) fn run_chunk(
     out
 }
 
-/// Appends finished chunks in order, resolving their vertex indices, and frees them.
+/// Appends finished chunks in order, resolving their vertex indices.
 struct Sink {
     positions: Vec<[f32; 3]>,
     triangles: Vec<[u32; 3]>,
-    pending: Vec<Option<ChunkOut>>,
-    next: usize,
     /// Vertices the previous chunk referenced on this one's first plane.
     seam: u32,
 }
 
 impl Sink {
     fn accept(&mut self, chunk: usize, out: ChunkOut) {
-        self.pending[chunk] = Some(out);
-        while let Some(out) = self.pending.get_mut(self.next).and_then(Option::take) {
-            assert!(
-                self.next == 0 || self.seam == out.first_plane,
-                "chunk {} disagrees with its predecessor on their shared plane",
-                self.next
-            );
-            let own = self.positions.len() as u64;
-            let next = own + out.positions.len() as u64;
-            assert!(
-                next + u64::from(out.foreign) <= u64::from(u32::MAX),
-                "too many vertices for 32-bit indices"
-            );
-            let (own, next) = (own as u32, next as u32);
-            self.positions.extend_from_slice(&out.positions);
-            self.triangles.extend(out.triangles.iter().map(|t| {
-                t.map(|v| {
-                    if v & TAG != 0 {
-                        next + (v & !TAG)
-                    } else {
-                        own + v
-                    }
-                })
-            }));
-            self.seam = out.foreign;
-            self.next += 1;
+        assert!(
+            chunk == 0 || self.seam == out.first_plane,
+            "chunk {chunk} disagrees with its predecessor on their shared plane"
+        );
+        let own = self.positions.len() as u64;
+        let next = own + out.positions.len() as u64;
+        assert!(
+            next + out.far.len() as u64 <= u64::from(u32::MAX),
+            "too many vertices for 32-bit indices"
+        );
+        let (own, next) = (own as u32, next as u32);
+        self.positions.extend_from_slice(&out.positions);
+        self.triangles.extend(out.triangles.iter().map(|t| {
+            t.map(|v| {
+                if v & TAG != 0 {
+                    next + (v & !TAG)
+                } else {
+                    own + v
+                }
+            })
+        }));
+        self.seam = out.far.len() as u32;
+    }
+}
+
+/// The chunks of layers `grid` is cut into.
+fn ranges(grid: &Grid, chunks: usize) -> Vec<(usize, usize)> {
+    let chunks = chunks.clamp(1, grid.n);
+    (0..chunks)
+        .map(|c| (c * grid.n / chunks, (c + 1) * grid.n / chunks))
+        .collect()
+}
+
+/// Which chunks are claimed, finished and taken, shared by the workers and the taker.
+struct Progress {
+    claimed: usize,
+    taken: usize,
+    done: Vec<Option<ChunkOut>>,
+    /// The taker is done or failed, or a worker died: no more chunks are started.
+    stop: bool,
+    died: bool,
+}
+
+/// Marks the progress as stopped if the worker holding it unwinds, so the taker does not wait
+/// for its chunk forever.
+struct Died<'a>(&'a (Mutex<Progress>, Condvar));
+
+impl Drop for Died<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            let (m, cv) = self.0;
+            let mut p = m.lock().unwrap_or_else(|e| e.into_inner());
+            p.stop = true;
+            p.died = true;
+            cv.notify_all();
         }
     }
 }
 
-/// The whole isosurface of `field` on `grid`, in `chunks` chunks of layers that the workers
-/// take in order; each finished chunk is appended to the mesh as soon as its predecessors are,
-/// so at most a few chunks exist besides the mesh. `expected` sizes the mesh's buffers.
-pub(super) fn extract(field: &impl ColumnField, grid: &Grid, chunks: usize, expected: f64) -> Mesh {
-    let chunks = chunks.clamp(1, grid.n);
-    let ranges: Vec<(usize, usize)> = (0..chunks)
-        .map(|c| (c * grid.n / chunks, (c + 1) * grid.n / chunks))
-        .collect();
-    let expected = expected.max(0.0) as usize;
-    let sink = Mutex::new(Sink {
-        positions: Vec::with_capacity(expected / 2 + expected / 16),
-        triangles: Vec::with_capacity(expected + expected / 8),
-        pending: (0..chunks).map(|_| None).collect(),
-        next: 0,
-        seam: 0,
-    });
-    let claimed = AtomicUsize::new(0);
-    let workers = rayon::current_num_threads().clamp(1, chunks);
-    rayon::scope(|s| {
+/// Extracts the chunks of `grid` on worker threads and hands each to `take` on the calling
+/// thread, in chunk order. Workers run at most a few chunks ahead of `take`, so however large the
+/// grid, only that many chunks exist at a time. An error of `take` stops the workers and is
+/// returned.
+fn for_each_chunk(
+    field: &impl ColumnField,
+    grid: &Grid,
+    chunks: usize,
+    expected: f64,
+    take: &mut dyn FnMut(usize, ChunkOut) -> Result<()>,
+) -> Result<()> {
+    let ranges = ranges(grid, chunks);
+    // Chunks that may be started beyond the one `take` waits for: two per worker, but no more
+    // than `IN_FLIGHT_BYTES` of finished chunks, so that many cores do not hold many chunks of a
+    // huge model.
+    let chunk_bytes = (expected.max(0.0) / ranges.len() as f64 * CHUNK_BYTES_PER_TRIANGLE) as usize;
+    let window = (2 * rayon::current_num_threads())
+        .min((IN_FLIGHT_BYTES / chunk_bytes.max(1)).max(2))
+        .max(1);
+    let workers = rayon::current_num_threads()
+        .min(window)
+        .clamp(1, ranges.len());
+    let shared = (
+        Mutex::new(Progress {
+            claimed: 0,
+            taken: 0,
+            done: (0..ranges.len()).map(|_| None).collect(),
+            stop: false,
+            died: false,
+        }),
+        Condvar::new(),
+    );
+    let lock = || shared.0.lock().unwrap_or_else(|e| e.into_inner());
+    let wait = |p| shared.1.wait(p).unwrap_or_else(|e| e.into_inner());
+    std::thread::scope(|s| {
         for _ in 0..workers {
-            s.spawn(|_| {
+            s.spawn(|| {
+                let _died = Died(&shared);
                 let mut work = Work::new(grid);
                 loop {
-                    let c = claimed.fetch_add(1, Ordering::Relaxed);
-                    let Some(&(i0, i1)) = ranges.get(c) else {
-                        break;
+                    let c = {
+                        let mut p = lock();
+                        while !p.stop && p.claimed < ranges.len() && p.claimed >= p.taken + window {
+                            p = wait(p);
+                        }
+                        if p.stop || p.claimed >= ranges.len() {
+                            break;
+                        }
+                        p.claimed += 1;
+                        p.claimed - 1
                     };
+                    let (i0, i1) = ranges[c];
                     let out = run_chunk(field, grid, i0, i1, true, &mut work);
-                    sink.lock().expect("a worker panicked").accept(c, out);
+                    lock().done[c] = Some(out);
+                    shared.1.notify_all();
                 }
             });
         }
+        let mut result = Ok(());
+        for c in 0..ranges.len() {
+            let out = {
+                let mut p = lock();
+                while p.done[c].is_none() && !p.died {
+                    p = wait(p);
+                }
+                let Some(out) = p.done[c].take() else {
+                    result = Err(Error::Internal("a generator worker died".into()));
+                    break;
+                };
+                p.taken = c + 1;
+                out
+            };
+            shared.1.notify_all();
+            result = take(c, out);
+            if result.is_err() {
+                break;
+            }
+        }
+        lock().stop = true;
+        shared.1.notify_all();
+        result
+    })
+}
+
+/// The whole isosurface of `field` on `grid`, in `chunks` chunks of layers; each finished chunk
+/// is appended to the mesh as soon as its predecessors are, so at most a few chunks exist
+/// besides the mesh. `expected` sizes the mesh's buffers.
+pub(super) fn extract(field: &impl ColumnField, grid: &Grid, chunks: usize, expected: f64) -> Mesh {
+    let expected = expected.max(0.0) as usize;
+    let mut sink = Sink {
+        positions: Vec::with_capacity(expected / 2 + expected / 16),
+        triangles: Vec::with_capacity(expected + expected / 8),
+        seam: 0,
+    };
+    let mut taken = 0;
+    let done = for_each_chunk(field, grid, chunks, expected as f64, &mut |c, out| {
+        sink.accept(c, out);
+        taken += 1;
+        Ok(())
     });
-    let sink = sink.into_inner().expect("a worker panicked");
-    assert_eq!(sink.next, chunks, "chunks missing");
+    assert!(done.is_ok(), "{done:?}");
+    assert_eq!(taken, ranges(grid, chunks).len(), "chunks missing");
     let (mut positions, mut triangles) = (sink.positions, sink.triangles);
     positions.shrink_to_fit();
     triangles.shrink_to_fit();
@@ -183,6 +303,21 @@ pub(super) fn extract(field: &impl ColumnField, grid: &Grid, chunks: usize, expe
         positions,
         triangles,
     }
+}
+
+/// The same surface as `extract`, chunk by chunk: each a mesh of its own (its triangles, in
+/// order, with copies of the seam vertices it shares with the next), so that no whole mesh is
+/// ever held. The triangles' corners are those of `extract`'s mesh, in the same order.
+pub(super) fn stream(
+    field: &impl ColumnField,
+    grid: &Grid,
+    chunks: usize,
+    expected: f64,
+    piece: &mut dyn FnMut(&Mesh) -> Result<()>,
+) -> Result<()> {
+    for_each_chunk(field, grid, chunks, expected, &mut |_, out| {
+        piece(&out.piece())
+    })
 }
 
 #[cfg(test)]
@@ -211,5 +346,47 @@ mod tests {
         let many = extract(&field, &grid, 9, 0.0);
         assert_eq!(one.positions.len(), many.positions.len());
         assert_eq!(soup(&one), soup(&many));
+    }
+
+    /// Streamed pieces hold the whole mesh's triangles, corner for corner and in order, each
+    /// piece a valid mesh of its own.
+    #[test]
+    fn pieces_hold_the_mesh_s_triangles_in_order() {
+        let field = MixingLayer::new(11, 3);
+        let grid = Grid::new(50, field.z_range());
+        let whole = extract(&field, &grid, 9, 0.0);
+        let bits = |c: [[f32; 3]; 3]| c.map(|p| p.map(f32::to_bits));
+        let want: Vec<_> = (0..whole.triangle_count())
+            .map(|i| bits(whole.corners(i)))
+            .collect();
+        let (mut got, mut pieces) = (Vec::new(), 0);
+        stream(&field, &grid, 9, 0.0, &mut |m| {
+            m.validate(std::path::Path::new("piece"))?;
+            got.extend((0..m.triangle_count()).map(|i| bits(m.corners(i))));
+            pieces += 1;
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(pieces, 9);
+        assert_eq!(got.len(), want.len());
+        assert!(got == want, "the pieces' triangles differ from the mesh's");
+    }
+
+    /// A consumer that fails stops the extraction with its error.
+    #[test]
+    fn a_failing_consumer_stops_the_workers() {
+        let field = MixingLayer::new(11, 3);
+        let grid = Grid::new(80, field.z_range());
+        let mut seen = 0;
+        let e = stream(&field, &grid, 40, 0.0, &mut |_| {
+            seen += 1;
+            if seen == 3 {
+                return Err(Error::Invalid("disk full".into()));
+            }
+            Ok(())
+        })
+        .unwrap_err();
+        assert_eq!(seen, 3);
+        assert!(e.to_string().contains("disk full"), "{e}");
     }
 }

@@ -87,7 +87,7 @@ fn edge_vertex(pa: [f64; 3], va: f32, pb: [f64; 3], vb: f32) -> [f32; 3] {
 /// Creates the vertices on plane `i`'s in-plane edges in a fixed scan order (row, edge type,
 /// z), recording their indices. Owned vertices are appended to `out.positions`; the far plane of
 /// a chunk that is not the last is owned by the next chunk, which numbers them the same way, so
-/// they get tagged indices 0, 1, 2, ... in the same order.
+/// they get tagged indices 0, 1, 2, ... in the same order (and their positions go to `out.far`).
 pub(super) fn scan_plane(
     grid: &Grid,
     i: usize,
@@ -101,18 +101,20 @@ pub(super) fn scan_plane(
     let Plane { vals, bits, idx } = plane;
     let pos = |j: usize, k: usize| [x, grid.xy(j), grid.z(k)];
     let add = |out: &mut ChunkOut, na: (usize, usize), nb: (usize, usize)| -> u32 {
+        let p = edge_vertex(
+            pos(na.0, na.1),
+            vals[na.0 * s + na.1],
+            pos(nb.0, nb.1),
+            vals[nb.0 * s + nb.1],
+        );
         if owned {
-            let p = edge_vertex(
-                pos(na.0, na.1),
-                vals[na.0 * s + na.1],
-                pos(nb.0, nb.1),
-                vals[nb.0 * s + nb.1],
-            );
             out.positions.push(p);
             (out.positions.len() - 1) as u32
         } else {
-            out.foreign += 1;
-            TAG | (out.foreign - 1)
+            // The next chunk makes the same vertex from the same node values; a copy here makes
+            // this chunk's triangles complete on their own (`ChunkOut::piece`).
+            out.far.push(p);
+            TAG | (out.far.len() - 1) as u32
         }
     };
     for j in 0..=grid.n {

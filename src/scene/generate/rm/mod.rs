@@ -30,7 +30,7 @@
 //! Here: the public generator, the grid and its calibration; `field`: the synthetic mixing
 //! layer; `noise`: the gradient noise it is made of; `tables`: the marching-tetrahedra tables;
 //! `march`: the extraction of one layer of cells; `chunks`: the layers in chunks on worker
-//! threads, stitched in order into the mesh.
+//! threads, stitched in order into the mesh or handed on one by one (`rm_pieces`).
 
 mod chunks;
 mod field;
@@ -38,8 +38,9 @@ mod march;
 mod noise;
 mod tables;
 
+use crate::error::Result;
 use crate::scene::mesh::Mesh;
-use chunks::{Work, extract, run_chunk};
+use chunks::{Work, extract, run_chunk, stream};
 use field::{MixingLayer, octaves_for};
 use rayon::prelude::*;
 
@@ -59,11 +60,30 @@ const ESTIMATE_LAYERS: usize = 32;
 /// x, y in [-1, 1] and z in [-0.35, 0.35]; about one vertex per two triangles; triangles face the
 /// +z side (the light fluid). Open only along the sides x = +-1 and y = +-1.
 pub fn rm(triangles: u64, seed: u64) -> Mesh {
+    let (field, grid, expected) = setup(triangles, seed);
+    extract(&field, &grid, chunk_count(&grid), expected)
+}
+
+/// The same surface as [`rm`], handed to `piece` a chunk of layers at a time, each chunk a mesh
+/// of its own; the pieces' triangles, in order, are `rm`'s. Only a few chunks exist at a time,
+/// so no whole model is held. An error of `piece` stops the extraction and is returned.
+pub fn rm_pieces(
+    triangles: u64,
+    seed: u64,
+    piece: &mut dyn FnMut(&Mesh) -> Result<()>,
+) -> Result<()> {
+    let (field, grid, expected) = setup(triangles, seed);
+    stream(&field, &grid, chunk_count(&grid), expected, piece)
+}
+
+/// The field of `seed` and the grid that gives it about `triangles` triangles, with the count
+/// expected there.
+fn setup(triangles: u64, seed: u64) -> (MixingLayer, Grid, f64) {
     let target = triangles.clamp(16, MAX_TRIANGLES) as f64;
     let n0 = ((target / TRIANGLES_PER_COLUMN).sqrt().round() as usize).clamp(MIN_N, MAX_N);
     let field = MixingLayer::new(seed, octaves_for(n0));
     let (grid, expected) = calibrate(&field, target, n0);
-    extract(&field, &grid, chunk_count(&grid), expected)
+    (field, grid, expected)
 }
 
 /// The grid whose estimated triangle count is closest to `target`, and that count: the count
