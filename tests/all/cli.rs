@@ -171,3 +171,45 @@ fn long_renders_say_how_far_they_are() {
         "{err}"
     );
 }
+
+/// A headless run (no Wayland display: `XDG_RUNTIME_DIR` unset) prints nothing from the window
+/// systems that Mesa's device-select layer probes: only dcrt's own lines.
+#[test]
+fn headless_runs_are_quiet() {
+    let d = TempDir::new("cli-quiet");
+    let scene = d.write("s.toml", SCENE);
+    let out = d.path("o.png");
+    for args in [
+        vec![
+            "render".as_ref(),
+            scene.as_os_str(),
+            "-o".as_ref(),
+            out.as_os_str(),
+            "--width".as_ref(),
+            "16".as_ref(),
+            "--height".as_ref(),
+            "16".as_ref(),
+        ],
+        vec!["info".as_ref()],
+    ] {
+        let r = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"))
+            .args(&args)
+            .env_remove("XDG_RUNTIME_DIR")
+            .env_remove("WAYLAND_DISPLAY")
+            .env_remove("WAYLAND_SOCKET")
+            .env_remove("NODEVICE_SELECT")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.success(), "{err}");
+        assert!(!err.contains("XDG_RUNTIME_DIR"), "{args:?}: {err}");
+        for line in err.lines() {
+            assert!(
+                ["adapter:", "replicated:", "frame 0:"]
+                    .iter()
+                    .any(|p| line.starts_with(p)),
+                "{args:?}: unexpected line on stderr: {line}"
+            );
+        }
+    }
+}

@@ -3,6 +3,7 @@
 
 mod bench;
 mod checks;
+mod headless;
 mod info;
 mod prepare;
 mod render;
@@ -363,6 +364,8 @@ struct BenchArgs {
 fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    // Before any thread or GPU: a headless run must not print window-system noise.
+    headless::rerun_quietly();
     // An interrupted command leaves none of its outputs (docs/ARCHITECTURE.md, Outputs).
     let grace = match dcrt::cluster::launched_ranks() {
         Some(k) if k > 1 => std::time::Duration::from_millis(500),
