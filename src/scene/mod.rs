@@ -2,10 +2,12 @@
 //! generators, and the flattened triangle model the BVH is built from.
 
 pub mod camera;
+pub mod data;
 pub mod generate;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+pub mod stl;
 mod strict;
 
 use crate::error::{Error, Result};
@@ -179,7 +181,10 @@ impl Scene {
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
-        if matches!(ext.as_deref(), Some("ply" | "obj")) {
+        if matches!(
+            ext.as_deref(),
+            Some("ply" | "obj" | "stl" | "vtk" | "vtp" | "gltf" | "glb")
+        ) {
             return Err(Error::format(
                 path,
                 None,
@@ -466,20 +471,32 @@ fn read_input(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// Loads an OBJ or PLY file by its extension.
+/// Loads a mesh file by its extension (`MESH_FORMATS`), geometry only.
 pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    load_mesh_data(path, &data::Keep::None).map(|(mesh, _)| mesh)
+}
+
+/// The mesh file extensions dcrt reads, as messages list them.
+pub const MESH_FORMATS: &str = ".obj, .ply, .stl";
+
+/// Loads a mesh file by its extension, with the data arrays it offers and the values of those
+/// `keep` asks for.
+pub fn load_mesh_data(path: &Path, keep: &data::Keep) -> Result<(Mesh, data::MeshData)> {
     check_regular(path, "mesh")?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    let none = data::MeshData::default();
+    let _ = keep;
     match ext.as_deref() {
-        Some("obj") => obj::load_obj(path),
-        Some("ply") => ply::load_ply(path),
+        Some("obj") => Ok((obj::load_obj(path)?, none)),
+        Some("ply") => Ok((ply::load_ply(path)?, none)),
+        Some("stl") => Ok((stl::load_stl(path)?, none)),
         _ => Err(Error::format(
             path,
             None,
-            "unknown mesh format: the file name must end in .obj or .ply",
+            format!("unknown mesh format: the file name must end in one of {MESH_FORMATS}"),
         )),
     }
 }
