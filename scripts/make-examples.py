@@ -47,10 +47,79 @@ def write_stl(poly, path):
     w.Write()
 
 
+def isosurface():
+    """ParaView's classic: the Wavelet source, contoured at RTData = 160, plus a second field
+    ("pressure", a smooth function of position) to colour it by, as a simulation's isosurface
+    coloured by another variable would be."""
+    wavelet = vtk.vtkRTAnalyticSource()
+    wavelet.SetWholeExtent(-10, 10, -10, 10, -10, 10)
+    contour = vtk.vtkContourFilter()
+    contour.SetInputConnection(wavelet.GetOutputPort())
+    contour.SetValue(0, 160.0)
+    contour.ComputeNormalsOff()
+    contour.ComputeScalarsOn()
+    calc = vtk.vtkArrayCalculator()
+    calc.SetInputConnection(contour.GetOutputPort())
+    calc.AddCoordinateScalarVariable("x", 0)
+    calc.AddCoordinateScalarVariable("y", 1)
+    calc.AddCoordinateScalarVariable("z", 2)
+    calc.SetFunction("101325 + 40 * (x * x - y * y) + 300 * sin(z / 3)")
+    calc.SetResultArrayName("pressure")
+    calc.Update()
+    return calc.GetOutput()
+
+
+def bracket():
+    """A block with a bore and a boss (cube, cylinder), each face tagged with a cell array
+    "region" (0 the block, 1 the boss): the legacy VTK example, coloured by cell data."""
+    parts = vtk.vtkAppendPolyData()
+    for i, src in enumerate([vtk.vtkCubeSource(), vtk.vtkCylinderSource()]):
+        if i == 0:
+            src.SetXLength(2.0)
+            src.SetYLength(1.0)
+            src.SetZLength(0.6)
+        else:
+            src.SetRadius(0.35)
+            src.SetHeight(0.8)
+            src.SetResolution(24)
+            src.SetCenter(0.5, 0.6, 0.0)
+        tri = clean_triangles(src)
+        region = vtk.vtkIntArray()
+        region.SetName("region")
+        for _ in range(tri.GetNumberOfCells()):
+            region.InsertNextValue(i)
+        tri.GetCellData().AddArray(region)
+        tri.GetPointData().Initialize()
+        parts.AddInputData(tri)
+    parts.Update()
+    return parts.GetOutput()
+
+
+def write_vtp(poly, path):
+    """As ParaView saves .vtp by default: appended raw data, zlib-compressed."""
+    w = vtk.vtkXMLPolyDataWriter()
+    w.SetInputData(poly)
+    w.SetDataModeToAppended()
+    w.EncodeAppendedDataOff()
+    w.SetCompressorTypeToZLib()
+    w.SetFileName(str(path))
+    w.Write()
+
+
+def write_vtk(poly, path):
+    w = vtk.vtkPolyDataWriter()
+    w.SetInputData(poly)
+    w.SetFileTypeToASCII()
+    w.SetFileName(str(path))
+    w.Write()
+
+
 def main():
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "scenes/meshes")
     out.mkdir(parents=True, exist_ok=True)
     write_stl(torus(), out / "torus.stl")
+    write_vtp(isosurface(), out / "isosurface.vtp")
+    write_vtk(bracket(), out / "bracket.vtk")
 
 
 if __name__ == "__main__":

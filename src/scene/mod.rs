@@ -2,6 +2,7 @@
 //! generators, and the flattened triangle model the BVH is built from.
 
 pub mod camera;
+pub mod color;
 pub mod data;
 pub mod generate;
 pub mod mesh;
@@ -9,6 +10,7 @@ pub mod obj;
 pub mod ply;
 pub mod stl;
 mod strict;
+pub mod vtk;
 
 use crate::error::{Error, Result};
 pub use camera::{Camera, CameraBasis};
@@ -477,7 +479,7 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
 }
 
 /// The mesh file extensions dcrt reads, as messages list them.
-pub const MESH_FORMATS: &str = ".obj, .ply, .stl";
+pub const MESH_FORMATS: &str = ".obj, .ply, .stl, .vtk, .vtp";
 
 /// Loads a mesh file by its extension, with the data arrays it offers and the values of those
 /// `keep` asks for.
@@ -488,11 +490,12 @@ pub fn load_mesh_data(path: &Path, keep: &data::Keep) -> Result<(Mesh, data::Mes
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     let none = data::MeshData::default();
-    let _ = keep;
     match ext.as_deref() {
         Some("obj") => Ok((obj::load_obj(path)?, none)),
         Some("ply") => Ok((ply::load_ply(path)?, none)),
         Some("stl") => Ok((stl::load_stl(path)?, none)),
+        Some("vtk") => vtk::legacy::load_vtk(path, keep),
+        Some("vtp") => vtk::xml::load_vtp(path, keep),
         _ => Err(Error::format(
             path,
             None,

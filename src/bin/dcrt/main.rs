@@ -38,8 +38,11 @@ struct Cli {
 enum Command {
     /// Render a scene to PNG (and EXR).
     Render(RenderArgs),
-    /// Show the GPU adapters, the one dcrt would use, its limits and features.
+    /// Show the GPU adapters, the one dcrt would use, its limits and features; or, given a
+    /// mesh file, its points, triangles, bounds and data arrays (what `color_by` can name).
     Info {
+        /// A mesh file to describe instead.
+        file: Option<PathBuf>,
         /// Use the first adapter whose name contains this text.
         #[arg(long)]
         adapter: Option<String>,
@@ -377,7 +380,10 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Render(a) => render::render(a),
-        Command::Info { adapter } => info::info(adapter.as_deref()),
+        Command::Info {
+            file: Some(file), ..
+        } => info::mesh(&file),
+        Command::Info { adapter, .. } => info::info(adapter.as_deref()),
         Command::Prepare(a) => prepare::prepare(a),
         Command::Bench(a) => bench::bench(a),
         Command::Trace(a) => trace::trace(a),
