@@ -114,12 +114,46 @@ def write_vtk(poly, path):
     w.Write()
 
 
+def write_parts_gltf(path):
+    """Three coloured parts, each an actor with its own position: exported by VTK's
+    vtkGLTFExporter as nodes with transforms and materials with base colours (one file, the
+    buffers inlined as data URIs)."""
+    ren = vtk.vtkRenderer()
+    win = vtk.vtkRenderWindow()
+    win.SetOffScreenRendering(1)
+    win.AddRenderer(ren)
+    specs = [
+        (vtk.vtkCubeSource(), (0.0, 0.0, 0.0), (0.80, 0.80, 0.82)),
+        (vtk.vtkCylinderSource(), (1.2, 0.0, 0.0), (0.90, 0.45, 0.10)),
+        (vtk.vtkSphereSource(), (-1.2, 0.0, 0.0), (0.15, 0.35, 0.80)),
+    ]
+    for src, pos, color in specs:
+        if isinstance(src, vtk.vtkCylinderSource):
+            src.SetResolution(24)
+        if isinstance(src, vtk.vtkSphereSource):
+            src.SetThetaResolution(24)
+            src.SetPhiResolution(12)
+        mapper = vtk.vtkPolyDataMapper()
+        mapper.SetInputData(clean_triangles(src))
+        actor = vtk.vtkActor()
+        actor.SetMapper(mapper)
+        actor.SetPosition(*pos)
+        actor.GetProperty().SetColor(*color)
+        ren.AddActor(actor)
+    exporter = vtk.vtkGLTFExporter()
+    exporter.SetRenderWindow(win)
+    exporter.InlineDataOn()
+    exporter.SetFileName(str(path))
+    exporter.Write()
+
+
 def main():
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "scenes/meshes")
     out.mkdir(parents=True, exist_ok=True)
     write_stl(torus(), out / "torus.stl")
     write_vtp(isosurface(), out / "isosurface.vtp")
     write_vtk(bracket(), out / "bracket.vtk")
+    write_parts_gltf(out / "parts.gltf")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ pub mod camera;
 pub mod color;
 pub mod data;
 pub mod generate;
+pub mod gltf;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
@@ -479,7 +480,7 @@ pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
 }
 
 /// The mesh file extensions dcrt reads, as messages list them.
-pub const MESH_FORMATS: &str = ".obj, .ply, .stl, .vtk, .vtp";
+pub const MESH_FORMATS: &str = ".obj, .ply, .stl, .vtk, .vtp, .gltf, .glb";
 
 /// Loads a mesh file by its extension, with the data arrays it offers and the values of those
 /// `keep` asks for.
@@ -496,6 +497,7 @@ pub fn load_mesh_data(path: &Path, keep: &data::Keep) -> Result<(Mesh, data::Mes
         Some("stl") => Ok((stl::load_stl(path)?, none)),
         Some("vtk") => vtk::legacy::load_vtk(path, keep),
         Some("vtp") => vtk::xml::load_vtp(path, keep),
+        Some("gltf" | "glb") => gltf::load_gltf(path, keep),
         _ => Err(Error::format(
             path,
             None,
