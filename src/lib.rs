@@ -9,6 +9,7 @@
 pub mod blocks;
 pub mod bvh;
 pub mod cluster;
+pub mod colormap;
 pub mod dc;
 pub mod error;
 pub mod gpu;

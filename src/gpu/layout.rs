@@ -260,6 +260,9 @@ pub struct MirrorCase {
     pub words: [u32; 4],
     /// `child_box`'s node (`bvh::Node`'s words).
     pub node: [u32; 16],
+    /// `colormap`'s value, range start and scale (its map: `words[2] % 4`; `srgb_color`'s
+    /// word: `words[0]`).
+    pub c: [f32; 4],
 }
 
 /// `MirrorResult` in `shaders/mirror.wgsl` (tests): what the GPU computed for one case.
@@ -274,4 +277,7 @@ pub struct MirrorResult {
     /// `child_box` of the case's node and slot.
     pub lo: [f32; 4],
     pub hi: [f32; 4],
+    /// `colormap` and `srgb_color` of the case.
+    pub color: [f32; 4],
+    pub rgb: [f32; 4],
 }

@@ -252,12 +252,12 @@ fn host_structs_match_naga_layouts() {
     });
     sized(w, size_of::<Path>());
     let w = same_layout!(MirrorCase, "MirrorCase", {
-        "p" => p, "n" => n, "u" => u, "words" => words, "node" => node,
+        "p" => p, "n" => n, "u" => u, "words" => words, "node" => node, "c" => c,
     });
     sized(w, size_of::<MirrorCase>());
     let w = same_layout!(MirrorResult, "MirrorResult", {
         "offset" => offset, "dir" => dir, "sample" => sample, "words" => words, "lo" => lo,
-        "hi" => hi,
+        "hi" => hi, "color" => color, "rgb" => rgb,
     });
     sized(w, size_of::<MirrorResult>());
 }
