@@ -44,6 +44,12 @@ struct Params {
     seed: u32,
     flags: u32,
     spp: u32,
+    // Colour by data: the first attribute block; the albedo kernel reads ray slots
+    // albedo_stride * i + albedo_stride - 1 (1: primary rays; a wave's fan: its bounce rays).
+    attr_block0: u32,
+    albedo_stride: u32,
+    pad4: u32,
+    pad5: u32,
 }
 
 // Params.flags

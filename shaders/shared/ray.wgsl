@@ -35,6 +35,8 @@ struct RayState {
     // origin must move to be past its rounding error (hit_point_error, offset_distance).
     hx: f32, hy: f32, hz: f32,
     herr: f32,
+    // The closest hit's barycentrics of v1 and v2: point data is interpolated with them.
+    b1: f32, b2: f32,
 }
 
 // RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
@@ -46,7 +48,7 @@ const FROM_CAMERA: u32 = 2u;
 // A ray that has not started traversal: no hit, the root next.
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32) -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
-                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0);
+                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

@@ -787,11 +787,13 @@ fn deep_tracer<'g>(
     let meshes = Meshes {
         first_prim: vec![0],
         colors: vec![[1.0; 3]],
+        looks: Vec::new(),
     };
     let model = GpuModel {
         format: blocks.format,
         node_blocks: blocks.node_blocks,
         tri_blocks: blocks.tri_blocks,
+        attrs: blocks.attrs,
         resident: &blocks.words,
         meshes: &meshes,
         depth: declared,

@@ -16,8 +16,13 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
     let meta = p.meta(&scene, camera, scene.width, scene.height);
     // Written beside the target and renamed into place: a failed write leaves no half file.
     dcrt::blocks::file::write(&a.output, &p.blocks, &meta)?;
+    let attrs = match p.blocks.attrs.blocks {
+        0 => String::new(),
+        n => format!(" + {n} attribute"),
+    };
     eprintln!(
-        "{} triangles, {} node + {} triangle blocks of {} bytes ({} MiB), BVH depth {}, wrote {}",
+        "{} triangles, {} node + {} triangle{attrs} blocks of {} bytes ({} MiB), BVH depth {}, \
+         wrote {}",
         p.model.triangles.len(),
         p.blocks.node_blocks,
         p.blocks.tri_blocks,

@@ -1,9 +1,10 @@
 //! Stanford PLY loading: `ascii`, `binary_little_endian` and `binary_big_endian` 1.0.
 //!
-//! Only vertex positions (`x`, `y`, `z` of element `vertex`) and face index lists
-//! (`vertex_indices` or `vertex_index` of element `face`) are kept. Every other property and
-//! element is still parsed, so that its bytes are skipped correctly and a file whose data does
-//! not match its header is reported instead of being misread.
+//! Vertex positions (`x`, `y`, `z` of element `vertex`) and face index lists (`vertex_indices`
+//! or `vertex_index` of element `face`) make the mesh; the other scalar properties of vertices
+//! and faces are its point and cell data arrays (`header::data_arrays`), kept when asked for.
+//! Every other property and element is still parsed, so that its bytes are skipped correctly
+//! and a file whose data does not match its header is reported instead of being misread.
 //!
 //! Here: the load API and the record builder the body readers share; `header`: the header
 //! parser; `ascii` and `binary`: the body readers.
@@ -15,10 +16,11 @@ mod fixtures;
 mod header;
 
 use crate::error::{Error, Result};
+use crate::scene::data::{Keep, MeshData, Values};
 use crate::scene::mesh::Mesh;
 use ascii::read_ascii;
 use binary::read_binary;
-use header::{Format, Header, Target};
+use header::{Format, Header, KeptArray, Role, Target};
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read};
 use std::path::Path;
@@ -39,8 +41,26 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
 /// Polygons are fan-triangulated in order, (v0,v1,v2), (v0,v2,v3), ..., so triangle ids follow
 /// file order. Header errors name the header line; data errors name the element and its index
 /// (and the line, for ascii files).
-pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
-    let header = Header::read(&mut reader, origin)?;
+pub fn parse_ply<R: BufRead>(reader: R, origin: &Path) -> Result<Mesh> {
+    parse_ply_data(reader, origin, &Keep::None).map(|(mesh, _)| mesh)
+}
+
+/// Reads the PLY file at `path` with its data arrays, keeping the values of those `keep` asks
+/// for.
+pub fn load_ply_data(path: &Path, keep: &Keep) -> Result<(Mesh, MeshData)> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    parse_ply_data(BufReader::with_capacity(1 << 18, file), path, keep)
+}
+
+/// `parse_ply` with the data arrays (see `load_ply_data`).
+pub fn parse_ply_data<R: BufRead>(
+    mut reader: R,
+    origin: &Path,
+    keep: &Keep,
+) -> Result<(Mesh, MeshData)> {
+    let mut header = Header::read(&mut reader, origin)?;
+    let mut data = MeshData::default();
+    let (kept, slots) = header::data_arrays(&mut header, keep, &mut data);
     let count = |target| {
         header
             .elements
@@ -57,6 +77,11 @@ pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
         vertex_count,
         xyz: [0.0; 3],
         poly: Vec::new(),
+        values: kept.iter().map(|k| Values::new(k.slots.len())).collect(),
+        kept,
+        record: vec![0.0; slots],
+        cells: keep.cells().then(Vec::new),
+        faces: 0,
     };
     match header.format {
         Format::Ascii => read_ascii(&mut reader, &header, &mut b, origin)?,
@@ -64,7 +89,9 @@ pub fn parse_ply<R: BufRead>(mut reader: R, origin: &Path) -> Result<Mesh> {
             read_binary(&mut reader, &header, big_endian, &mut b, origin)?;
         }
     }
-    Ok(b.mesh)
+    data.kept = b.kept.iter().map(|k| k.index).zip(b.values).collect();
+    data.triangle_cells = b.cells.unwrap_or_default();
+    Ok((b.mesh, data))
 }
 
 /// Collects decoded values into the mesh, one record at a time.
@@ -73,9 +100,36 @@ struct Builder {
     vertex_count: u64,
     xyz: [f64; 3],
     poly: Vec<u32>,
+    /// The kept data arrays, their values, and the current record's values by slot.
+    kept: Vec<KeptArray>,
+    values: Vec<Values>,
+    record: Vec<f64>,
+    /// Each triangle's face, when cell arrays may be kept.
+    cells: Option<Vec<u32>>,
+    faces: u32,
 }
 
 impl Builder {
+    /// A decoded scalar property.
+    #[inline]
+    fn scalar(&mut self, role: Role, v: f64) {
+        match role {
+            Role::Coord(k) => self.xyz[k] = v,
+            Role::Value(s) => self.record[s] = v,
+            Role::Skip | Role::Indices => {}
+        }
+    }
+
+    /// Appends the current record's values to the kept arrays of `target`.
+    fn keep(&mut self, target: Target) {
+        for (k, v) in self.kept.iter().zip(&mut self.values) {
+            if k.target == target {
+                v.data
+                    .extend(k.slots.iter().map(|&s| (self.record[s] * k.scale) as f32));
+            }
+        }
+    }
+
     #[inline]
     fn index(&mut self, v: f64) -> std::result::Result<(), String> {
         // Also rejects negative values; the header limits vertex_count to u32 range.
@@ -100,6 +154,7 @@ impl Builder {
                     return Err(format!("coordinate is not finite: {p:?}"));
                 }
                 self.mesh.positions.push(p);
+                self.keep(target);
             }
             Target::Faces => {
                 let poly = &self.poly;
@@ -112,7 +167,12 @@ impl Builder {
                 for k in 1..poly.len() - 1 {
                     self.mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
                 }
+                if let Some(c) = self.cells.as_mut() {
+                    c.extend(std::iter::repeat_n(self.faces, poly.len() - 2));
+                }
+                self.faces = self.faces.wrapping_add(1);
                 self.poly.clear();
+                self.keep(target);
             }
             Target::Other => {}
         }
@@ -320,6 +380,58 @@ mod tests {
         file.truncate(file.len() - 6 * (1 + 4 + 4 * 4 + 1 + 2 * 4));
         file.extend_from_slice(&[3, 0xff, 0xff, 0xff, 0xff, 0, 0, 0, 0]);
         assert_err(&file, "face 0", "file ends after 0 of 6 faces");
+    }
+
+    #[test]
+    fn vertex_and_face_properties_are_data_arrays() {
+        use crate::scene::data::Assoc;
+        // The cube's vertices carry nx, s, red and u; faces flags (and a texcoord list, not an
+        // array). With red, green, blue the vertices get an "RGB" colour array.
+        let mut els = cube_elements("float", "uchar", "int");
+        els[1].props.push(P::S("uchar", "green"));
+        els[1].props.push(P::S("uchar", "blue"));
+        for (i, row) in els[1].rows.iter_mut().enumerate() {
+            row[6] = i as f64;
+            row.extend([51.0, 0.0]);
+        }
+        for (i, row) in els[3].rows.iter_mut().enumerate() {
+            row[0] = 10.0 * i as f64;
+        }
+        for format in FORMATS {
+            let file = write_ply(format, &els);
+            let (mesh, d) = parse_ply_data(&file[..], Path::new("t.ply"), &Keep::All).unwrap();
+            assert_same(&mesh, &expected_cube());
+            let names: Vec<String> = d.arrays.iter().map(|a| a.to_string()).collect();
+            assert_eq!(
+                names,
+                [
+                    "nx (point data, 1 x float)",
+                    "s (point data, 1 x short)",
+                    "RGB (point data, 3 x uchar, colours)",
+                    "u (point data, 1 x double)",
+                    "flags (cell data, 1 x uchar)"
+                ]
+            );
+            assert_eq!(
+                d.values(3).unwrap().data,
+                (0..8).map(|i| i as f32).collect::<Vec<_>>()
+            );
+            assert_eq!(d.values(2).unwrap().data[..3], [1.0, 0.2, 0.0]);
+            // Two triangles per face, each of its face.
+            assert_eq!(d.triangle_cells, vec![0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5]);
+            assert_eq!(
+                d.values(4).unwrap().data,
+                vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0]
+            );
+            // Only what is asked for is kept.
+            let keep = Keep::One {
+                name: "u".into(),
+                assoc: Assoc::Point,
+            };
+            let (_, d) = parse_ply_data(&file[..], Path::new("t.ply"), &keep).unwrap();
+            assert_eq!(d.kept.len(), 1);
+            assert!(d.triangle_cells.is_empty());
+        }
     }
 
     #[test]
