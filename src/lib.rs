@@ -13,6 +13,7 @@ pub mod colormap;
 pub mod dc;
 pub mod error;
 pub mod gpu;
+pub mod legend;
 pub mod mirror;
 pub mod output;
 pub mod reference;

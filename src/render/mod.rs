@@ -311,6 +311,28 @@ impl Loaded {
     }
 }
 
+/// The colour legend of what `path` renders (`--legend`), without building the model: from a
+/// block file's metadata, or by loading only a scene's meshes that are coloured by data (their
+/// ranges are all the legend needs). What a cluster's display draws.
+pub fn legend_of(path: &Path) -> Result<crate::legend::Legend> {
+    match Input::resolve(path)? {
+        Input::Dcb(dcb, scene) => {
+            let f = DcbFile::open(&dcb)?;
+            let bg = scene.map_or(f.meta.background, |s| s.background);
+            crate::legend::Legend::new(&f.meta.looks, bg)
+        }
+        Input::Scene(mut scene) => {
+            scene.meshes.retain(|m| m.color_by.is_some());
+            let looks = if scene.meshes.is_empty() {
+                Vec::new()
+            } else {
+                scene.load_model()?.looks
+            };
+            crate::legend::Legend::new(&looks, scene.background)
+        }
+    }
+}
+
 /// What a render's path names: a block file, with the scene that names it if any, or a scene of
 /// meshes.
 enum Input {

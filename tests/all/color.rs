@@ -279,3 +279,66 @@ fn no_colour_data_no_attribute_blocks() {
     assert_eq!(p.blocks.count(), p.blocks.node_blocks + p.blocks.tri_blocks);
     assert_eq!(Colormap::default(), Colormap::CoolToWarm);
 }
+
+/// `--legend` draws a scalar bar per array of values at the image's right edge: the colormap's
+/// own 8-bit colours from the range's start (bottom) to its end (top); the rest of the image is
+/// untouched. A scene coloured only by direct colours has no legend to draw: an error.
+#[test]
+fn legend_shows_the_colormap_beside_the_image() {
+    let d = TempDir::new("color-legend");
+    d.write("grid.vtk", grid_vtk(4));
+    let scene = d.write(
+        "s.toml",
+        format!(
+            "{CAMERA}[image]\nwidth = 160\nheight = 120\n[[mesh]]\nfile = \"grid.vtk\"\n\
+             color_by = \"x\"\ncolormap = \"viridis\"\n"
+        ),
+    );
+    let (plain, with) = (d.path("plain.png"), d.path("legend.png"));
+    for (out, extra) in [(&plain, None), (&with, Some("--legend"))] {
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"render", &scene, &"-o", out];
+        if let Some(e) = &extra {
+            args.push(e);
+        }
+        let r = dcrt(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let a = image::open(&plain).unwrap().to_rgb8();
+    let b = image::open(&with).unwrap().to_rgb8();
+    let (w, h) = b.dimensions();
+    // The bar: 3% of the width (6 px at least), 60% of the height, centred, at the right edge
+    // less room for the labels (`legend::Legend::draw`).
+    let text = (f64::from(h) / 28.0).clamp(8.0, 28.0);
+    let bar_w = (f64::from(w) * 0.03).max(6.0) as u32;
+    let bar_h = (f64::from(h) * 0.6).max(16.0) as u32;
+    let x0 = w - bar_w - (text * 4.5) as u32;
+    let top = (h - bar_h) / 2;
+    let x = x0 + bar_w / 2;
+    let map = Colormap::Viridis.srgb();
+    for y in 1..bar_h - 1 {
+        let bin = ((bar_h - 1 - y) as usize * 256) / bar_h as usize;
+        assert_eq!(b.get_pixel(x, top + y).0, map[bin], "bar row {y}");
+    }
+    for y in 0..h {
+        for x in 0..x0 - 2 {
+            assert_eq!(
+                a.get_pixel(x, y),
+                b.get_pixel(x, y),
+                "pixel ({x}, {y}) outside the legend"
+            );
+        }
+    }
+    // Colour arrays have no scale to show.
+    let rgb = d.write(
+        "rgb.toml",
+        format!("{CAMERA}[[mesh]]\nfile = \"grid.vtk\"\ncolor_by = \"rgb\"\ncell = true\n"),
+    );
+    let out = d.path("rgb.png");
+    let r = dcrt(&[&"render", &rgb, &"-o", &out, &"--legend"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("--legend: no mesh is coloured by values"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

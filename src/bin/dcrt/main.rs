@@ -175,6 +175,10 @@ struct RenderArgs {
     /// PNG exposure in stops (the EXR stays linear).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     exposure: f32,
+    /// Draw a colour legend (a scalar bar with the array's name and range) on the PNG, for each
+    /// array whose values colour the image (`color_by`).
+    #[arg(long)]
+    legend: bool,
     /// Print how far a frame is every this many seconds (a long render with many samples).
     #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
     progress_every: f64,
@@ -456,6 +460,7 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         timeout: std::time::Duration::from_secs(c.timeout),
         display_bench: c.display_bench,
         stats: c.stats.clone(),
+        legend: a.legend,
     };
     // A failed job leaves none of the frames this rank wrote, as in one process.
     dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;

@@ -78,6 +78,10 @@ fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
 fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
     let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let legend = a
+        .legend
+        .then(|| dcrt::legend::Legend::new(&loaded.meshes.looks, loaded.background))
+        .transpose()?;
     let mut report = Vec::new();
     let width = a.width.unwrap_or(loaded.width);
     let height = a.height.unwrap_or(loaded.height);
@@ -139,7 +143,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                 report.push(stats.clone());
             }
             let png = numbered(&a.output);
-            output::write_png_exposed(&png, &frame, a.exposure)?;
+            output::write_png_legend(&png, &frame, a.exposure, legend.as_ref())?;
             if let Some(exr) = &a.exr {
                 let exr = numbered(exr);
                 output::write_exr(&exr, &frame, &a.aov)?;

@@ -233,7 +233,8 @@ struct Parser<'a> {
 impl Reader<'_> {
     /// The three header lines; returns the version.
     fn header(&mut self) -> Result<f64> {
-        let first = self.line_text()?.unwrap_or("");
+        // Garbage is "not a VTK file", not "not text".
+        let first = self.line_text().ok().flatten().unwrap_or("");
         let v = first
             .strip_prefix('#')
             .map(str::trim_start)
