@@ -57,5 +57,6 @@ const JITTER: u32 = 1u;        // jitter primary rays in the pixel (spp > 1)
 const CULL: u32 = 2u;          // primary rays that miss the root box skip traversal
 const FIRST_SAMPLE: u32 = 4u;  // the first pass of a render: the shade kernel resets pixels
 const SAMPLER_INDEPENDENT: u32 = 8u;  // sample2 hashes independent uniforms (default: Sobol')
+const PARALLEL: u32 = 16u;     // a parallel projection: rays along forward from the image plane
 
 @group(0) @binding(0) var<uniform> params: Params;

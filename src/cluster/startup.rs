@@ -160,7 +160,10 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             legend,
         });
     };
-    let loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
+    let mut loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
+    if let Some(c) = opts.camera {
+        loaded.camera = c;
+    }
     let gpu = Gpu::new(opts.adapter.as_deref())?;
     let dc = match opts.cache {
         // A single render rank owns every block: a cache would only slow its pipelines down.

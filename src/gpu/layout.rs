@@ -67,6 +67,8 @@ pub mod flags {
     pub const FIRST_SAMPLE: u32 = 4;
     /// Params: `sample2` hashes independent uniform numbers (default: Owen-scrambled Sobol').
     pub const SAMPLER_INDEPENDENT: u32 = 8;
+    /// Params: a parallel projection (rays along `forward` from the image plane).
+    pub const PARALLEL: u32 = 16;
     /// RayState: stop at the first hit found.
     pub const ANY_HIT: u32 = 1;
     /// RayState: the ray starts at the camera, on no surface (no proof of a positive hit

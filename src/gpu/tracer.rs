@@ -522,7 +522,8 @@ impl<'g> Tracer<'g> {
                     | match sh.sampler {
                         Sampler::Sobol => 0,
                         Sampler::Independent => flags::SAMPLER_INDEPENDENT,
-                    };
+                    }
+                    | if basis.parallel { flags::PARALLEL } else { 0 };
                 let t = Instant::now();
                 self.params.albedo_stride = 1;
                 stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);

@@ -9,6 +9,7 @@ pub mod gltf;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+pub mod pvcc;
 pub mod stl;
 mod strict;
 pub mod vtk;
@@ -466,6 +467,7 @@ impl Scene {
                 focal_point: v.focal_point,
                 view_up: v.view_up,
                 view_angle: v.view_angle,
+                parallel_scale: None,
             };
         }
         fitted_camera(model.bounds)
@@ -761,6 +763,7 @@ pub fn fitted_camera(b: Bounds) -> Camera {
         focal_point: c,
         view_up: [0.0, 0.0, 1.0],
         view_angle,
+        parallel_scale: None,
     }
 }
 

@@ -166,6 +166,7 @@ fn cell_colours_are_the_cpu_twins_bit_for_bit() {
         focal_point: [0.5, 0.5, 0.0],
         view_up: [0.0, 0.0, 1.0],
         view_angle: 50.0,
+        parallel_scale: None,
     };
     for (key, extra) in [
         (
@@ -233,6 +234,7 @@ fn point_values_are_interpolated_at_the_hit() {
         focal_point: [0.5, 0.5, 0.0],
         view_up: [0.0, 1.0, 0.0],
         view_angle: 60.0,
+        parallel_scale: None,
     };
     let coloured = prepare(model.clone());
     let white = prepare(Model {

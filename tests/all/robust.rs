@@ -847,6 +847,7 @@ fn traversal_stack_overflow_is_an_error() {
         focal_point: [0.0, 0.0, 0.0],
         view_up: [0.0, 1.0, 0.0],
         view_angle: 30.0,
+        parallel_scale: None,
     };
     let err = tracer
         .render(&camera.basis(16, 16), [0.0; 3])

@@ -179,6 +179,10 @@ struct RenderArgs {
     /// array whose values colour the image (`color_by`).
     #[arg(long)]
     legend: bool,
+    /// The camera of a ParaView camera file (.pvcc, saved by ParaView's Adjust Camera dialog):
+    /// position, focal point, view up, view angle, and parallel projection when set.
+    #[arg(long)]
+    camera: Option<PathBuf>,
     /// Print how far a frame is every this many seconds (a long render with many samples).
     #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
     progress_every: f64,
@@ -461,6 +465,11 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         display_bench: c.display_bench,
         stats: c.stats.clone(),
         legend: a.legend,
+        camera: a
+            .camera
+            .as_deref()
+            .map(dcrt::scene::pvcc::load_pvcc)
+            .transpose()?,
     };
     // A failed job leaves none of the frames this rank wrote, as in one process.
     dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;
