@@ -8,6 +8,7 @@
 #import dc
 #import node
 #import colormap
+#import compensated
 
 // Mirrors gpu::layout::MirrorCase.
 struct MirrorCase {
@@ -23,7 +24,7 @@ struct MirrorCase {
 struct MirrorResult {
     offset: vec4<f32>,   // offset_ray(p, n)
     dir: vec4<f32>,      // cosine_dir(n, u)
-    sample: vec4<f32>,   // sample2(pixel, dim, index) in xy
+    sample: vec4<f32>,   // sample2(pixel, dim, index) in xy, dot_difference(n, p, u) in z
     words: vec4<u32>,    // hash(input), tile_pixel(invocation) in yz, cache_line(input)
     lo: vec4<f32>,       // child_box(node, node_step(node), slot)
     hi: vec4<f32>,
@@ -44,7 +45,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var r: MirrorResult;
     r.offset = vec4(offset_ray(c.p.xyz, c.n.xyz, c.p.w), 0.0);
     r.dir = vec4(cosine_dir(c.n.xyz, c.u.xy), 0.0);
-    r.sample = vec4(sample2(c.words.y, c.words.z, c.words.w), 0.0, 0.0);
+    r.sample = vec4(sample2(c.words.y, c.words.z, c.words.w),
+                    dot_difference(c.n.xyz, c.p.xyz, c.u.xyz), 0.0);
     let t = tile_pixel(i);
     r.words = vec4(hash(c.words.x), t.x, t.y, cache_line(c.words.x >> 2u));
     let n = node_of(c.node[0], c.node[1], c.node[2], c.node[3]);

@@ -51,7 +51,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             d = normalize(params.forward.xyz);
             o = params.origin.xyz + sx * params.right.xyz + sy * params.up.xyz;
         }
-        var r = new_ray(o, d, FAR, LIVE, FROM_CAMERA);
+        var r = new_ray(o, d, FAR, LIVE, FROM_CAMERA, NONE);
         if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;
         } else if (params.flags & CULL) != 0u && !hits_root(o, d) {

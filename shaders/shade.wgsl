@@ -49,6 +49,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             var path: Path;
             path.pos = ray_hit_point(r);
             path.err = r.herr;
+            path.tri = r.hit;
             path.n = select(n, -n, dot(n, d) > 0.0);
             path.alive = 1u;
             path.depth = 0u;

@@ -31,7 +31,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let i = j / fan;
         let k = j - i * fan;
         let path = paths[i];
-        var r = new_ray(vec3(0.0), vec3(0.0, 0.0, 1.0), FAR, OUTSIDE, 0u);
+        var r = new_ray(vec3(0.0), vec3(0.0, 0.0, 1.0), FAR, OUTSIDE, 0u, NONE);
         if path.alive != 0u {
             let n = path.n;
             var dir = n;
@@ -63,7 +63,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             if go {
                 let o = spawn_origin(path.pos, n, path.err);
-                r = new_ray(o, dir, tmax, LIVE, flags);
+                r = new_ray(o, dir, tmax, LIVE, flags, path.tri);
                 live = true;
             }
         }

@@ -61,6 +61,29 @@ fn child_entry(n: Node, step: vec3<f32>, i: u32, index: u32, org: vec3<f32>, inv
     return vec4(index, select(c, 0u, c == INNER), key, 0u);
 }
 
+// The closest hit found in a round: where its triangle is and its barycentrics.
+struct Closest {
+    found: bool,
+    row: u32,
+    slot: u32,
+    b: vec3<f32>,
+}
+
+// Takes hit th on triangle `index` (block row, slot) as the ray's closest; true when the ray is
+// done with it (shadow and occlusion rays need any hit, not the closest).
+fn take_hit(r: ptr<function, RayState>, c: ptr<function, Closest>, th: TriHit, index: u32,
+            row: u32, slot: u32) -> bool {
+    (*r).t = th.t;
+    (*r).hit = index;
+    *c = Closest(true, row, slot, th.b);
+    if ((*r).flags & ANY_HIT) != 0u {
+        (*r).status = DONE;
+        (*r).sp = 0u;
+        return true;
+    }
+    return false;
+}
+
 // The nearer of two entries first (a compare-exchange of a sorting network).
 fn near_first(a: ptr<function, vec4<u32>>, b: ptr<function, vec4<u32>>) {
     let x = *a;
@@ -115,122 +138,140 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // normal, point and error are computed once, after the loop: block rows do not change
         // during a dispatch, and a CPU driver runs a branch's code in every iteration however
         // few lanes take it.
-        var found = false;
-        var hit_row = 0u;
-        var hit_slot = 0u;
-        var hit_b = vec3(0.0);
+        var closest = Closest(false, 0u, 0u, vec3(0.0));
         var last_tri_block = NONE;
         // What is visited next, as a stack entry holds it (RayState.cur_index, cur_count).
         var cur = vec2(r.cur_index, r.cur_count);
+        // A triangle whose hit distance f32 cannot resolve (intersect's UNRESOLVED_T) ends the
+        // traversal loop and is decided by resolve_hit outside it, in the order traversal met it,
+        // before the loop resumes: code in the loop costs a CPU driver in every iteration.
+        var pending = false;
+        var pending_row = 0u;
+        var pending_slot = 0u;
+        var pending_index = 0u;
         loop {
-            if cur.y == NONE && r.sp == 0u {
-                r.status = DONE;
-                break;
-            }
-            if iters >= params.step_budget {
-                break;
-            }
-            iters += 1u;
-            if cur.y == NONE {
-                r.sp -= 1u;
-                let e = stacks[base + r.sp];
-                // Entries farther than the closest hit found since they were pushed are culled.
-                if !(bitcast<f32>(e.z) <= r.t) {
-                    continue;
-                }
-                // Visited in this same iteration.
-                cur = e.xy;
-            }
-            if cur.y == 0u {
-                let l = node_loc(cur.x);
-                let row = locate(l.x);
-                if row == NONE {
-                    r.wait_block = l.x;
-                    suspended = true;
+            loop {
+                if cur.y == NONE && r.sp == 0u {
+                    r.status = DONE;
                     break;
                 }
-                visits += 1u;
-                entries += u32(l.x != last_block);
-                last_block = l.x;
-                let n = node_at(row, l.y);
-                let step = node_step(n);
-                // Inner children are adjacent from child_base, leaves' triangles from tri_base,
-                // both in slot order.
-                var ci = n.child_base;
-                var ti = n.tri_base;
-                let c = (vec4(n.counts) >> vec4(0u, 8u, 16u, 24u)) & vec4(0xffu);
-                let inner = c == vec4(INNER);
-                var e0 = child_entry(n, step, 0u, select(ti, ci, inner.x), org, inv, r.t);
-                ci += u32(inner.x);
-                ti += select(c.x, 0u, inner.x);
-                var e1 = child_entry(n, step, 1u, select(ti, ci, inner.y), org, inv, r.t);
-                ci += u32(inner.y);
-                ti += select(c.y, 0u, inner.y);
-                var e2 = child_entry(n, step, 2u, select(ti, ci, inner.z), org, inv, r.t);
-                ci += u32(inner.z);
-                ti += select(c.z, 0u, inner.z);
-                var e3 = child_entry(n, step, 3u, select(ti, ci, inner.w), org, inv, r.t);
-                near_first(&e0, &e1);
-                near_first(&e2, &e3);
-                near_first(&e0, &e2);
-                near_first(&e1, &e3);
-                near_first(&e1, &e2);
-                // The nearest is visited next, the others pushed farthest first.
-                let pushes = u32(e1.z != MISS) + u32(e2.z != MISS) + u32(e3.z != MISS);
-                if r.sp + pushes > params.stack_size {
-                    r.status = OVERFLOW;
+                if iters >= params.step_budget {
                     break;
                 }
-                if e3.z != MISS {
-                    stacks[base + r.sp] = e3;
-                    r.sp += 1u;
+                iters += 1u;
+                if cur.y == NONE {
+                    r.sp -= 1u;
+                    let e = stacks[base + r.sp];
+                    // Entries farther than the closest hit found since they were pushed are culled.
+                    if !(bitcast<f32>(e.z) <= r.t) {
+                        continue;
+                    }
+                    // Visited in this same iteration.
+                    cur = e.xy;
                 }
-                if e2.z != MISS {
-                    stacks[base + r.sp] = e2;
-                    r.sp += 1u;
-                }
-                if e1.z != MISS {
-                    stacks[base + r.sp] = e1;
-                    r.sp += 1u;
-                }
-                cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
-            } else {
-                // One triangle of a leaf per iteration, the rest kept as the current entry: a
-                // loop over the leaf would run, in every lane, as often as the longest leaf
-                // among them. A fault on a leaf that spans two blocks keeps the untested rest, so
-                // a resumed ray never needs the first block again (with one cache line it would
-                // evict the second).
-                let l = tri_loc(cur.x);
-                let row = locate(l.x);
-                if row == NONE {
-                    r.wait_block = l.x;
-                    suspended = true;
-                    break;
-                }
-                tests += 1u;
-                tri_entries += u32(l.x != last_tri_block);
-                last_tri_block = l.x;
-                let tri = tri_at(row, l.y);
-                let th = intersect(tri, org, sh, r.t, camera);
-                if th.t > 0.0 {
-                    r.t = th.t;
-                    r.hit = cur.x;
-                    found = true;
-                    hit_row = row;
-                    hit_slot = l.y;
-                    hit_b = th.b;
-                    // Shadow and occlusion rays need any hit, not the closest.
-                    if (r.flags & ANY_HIT) != 0u {
-                        r.status = DONE;
-                        r.sp = 0u;
+                if cur.y == 0u {
+                    let l = node_loc(cur.x);
+                    let row = locate(l.x);
+                    if row == NONE {
+                        r.wait_block = l.x;
+                        suspended = true;
+                        break;
+                    }
+                    visits += 1u;
+                    entries += u32(l.x != last_block);
+                    last_block = l.x;
+                    let n = node_at(row, l.y);
+                    let step = node_step(n);
+                    // Inner children are adjacent from child_base, leaves' triangles from tri_base,
+                    // both in slot order.
+                    var ci = n.child_base;
+                    var ti = n.tri_base;
+                    let c = (vec4(n.counts) >> vec4(0u, 8u, 16u, 24u)) & vec4(0xffu);
+                    let inner = c == vec4(INNER);
+                    var e0 = child_entry(n, step, 0u, select(ti, ci, inner.x), org, inv, r.t);
+                    ci += u32(inner.x);
+                    ti += select(c.x, 0u, inner.x);
+                    var e1 = child_entry(n, step, 1u, select(ti, ci, inner.y), org, inv, r.t);
+                    ci += u32(inner.y);
+                    ti += select(c.y, 0u, inner.y);
+                    var e2 = child_entry(n, step, 2u, select(ti, ci, inner.z), org, inv, r.t);
+                    ci += u32(inner.z);
+                    ti += select(c.z, 0u, inner.z);
+                    var e3 = child_entry(n, step, 3u, select(ti, ci, inner.w), org, inv, r.t);
+                    near_first(&e0, &e1);
+                    near_first(&e2, &e3);
+                    near_first(&e0, &e2);
+                    near_first(&e1, &e3);
+                    near_first(&e1, &e2);
+                    // The nearest is visited next, the others pushed farthest first.
+                    let pushes = u32(e1.z != MISS) + u32(e2.z != MISS) + u32(e3.z != MISS);
+                    if r.sp + pushes > params.stack_size {
+                        r.status = OVERFLOW;
+                        break;
+                    }
+                    if e3.z != MISS {
+                        stacks[base + r.sp] = e3;
+                        r.sp += 1u;
+                    }
+                    if e2.z != MISS {
+                        stacks[base + r.sp] = e2;
+                        r.sp += 1u;
+                    }
+                    if e1.z != MISS {
+                        stacks[base + r.sp] = e1;
+                        r.sp += 1u;
+                    }
+                    cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
+                } else {
+                    // One triangle of a leaf per iteration, the rest kept as the current entry: a
+                    // loop over the leaf would run, in every lane, as often as the longest leaf
+                    // among them. A fault on a leaf that spans two blocks keeps the untested rest, so
+                    // a resumed ray never needs the first block again (with one cache line it would
+                    // evict the second).
+                    let l = tri_loc(cur.x);
+                    let row = locate(l.x);
+                    if row == NONE {
+                        r.wait_block = l.x;
+                        suspended = true;
+                        break;
+                    }
+                    tests += 1u;
+                    tri_entries += u32(l.x != last_tri_block);
+                    last_tri_block = l.x;
+                    let tri = tri_at(row, l.y);
+                    var th = NO_HIT;
+                    if cur.x != r.skip {
+                        th = intersect(tri, org, sh, r.t);
+                    }
+                    let index = cur.x;
+                    cur = select(vec2(cur.x + 1u, cur.y - 1u), vec2(0u, NONE), cur.y == 1u);
+                    if th.t == UNRESOLVED_T {
+                        pending = true;
+                        pending_row = row;
+                        pending_slot = l.y;
+                        pending_index = index;
+                        break;
+                    }
+                    if th.t > 0.0 && take_hit(&r, &closest, th, index, row, l.y) {
                         cur.y = NONE;
                         break;
                     }
                 }
-                cur = select(vec2(cur.x + 1u, cur.y - 1u), vec2(0u, NONE), cur.y == 1u);
+            }
+            if !pending {
+                break;
+            }
+            pending = false;
+            let th = resolve_hit(tri_at(pending_row, pending_slot), org, sh, r.t, camera);
+            if th.t > 0.0 && take_hit(&r, &closest, th, pending_index, pending_row, pending_slot) {
+                cur.y = NONE;
+                break;
             }
         }
-        if found {
+        if closest.found {
+            let hit_row = closest.row;
+            let hit_slot = closest.slot;
+            let hit_b = closest.b;
             let tri = tri_at(hit_row, hit_slot);
             let n = unit_normal(tri);
             r.nx = n.x;

@@ -37,7 +37,8 @@ struct Params {
     pad0: u32,
     pad1: u32,
     pad2: u32,
-    pad3: u32,
+    // 0, unknown to the compiler (shared/compensated.wgsl).
+    opaque_zero: u32,
     // Sampling: the sample index of this pass (the sampler's index), the seed, flags (JITTER,
     // CULL, FIRST_SAMPLE, SAMPLER_INDEPENDENT) and the samples per pixel of the render.
     sample: u32,

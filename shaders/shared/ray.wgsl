@@ -37,6 +37,10 @@ struct RayState {
     herr: f32,
     // The closest hit's barycentrics of v1 and v2: point data is interpolated with them.
     b1: f32, b2: f32,
+    // The triangle (BVH order) a secondary ray leaves, which it cannot hit again (a ray meets a
+    // plane once), or NONE: skipping it saves proving, in extended precision, that its hit lies
+    // behind the origin.
+    skip: u32,
 }
 
 // RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
@@ -46,9 +50,10 @@ const ANY_HIT: u32 = 1u;
 const FROM_CAMERA: u32 = 2u;
 
 // A ray that has not started traversal: no hit, the root next.
-fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32) -> RayState {
+fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32, skip: u32)
+    -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
-                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, skip);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

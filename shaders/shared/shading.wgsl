@@ -49,7 +49,7 @@ struct Path {
     tp: vec3<f32>,     // path throughput
     err: f32,          // how far along n a new ray's origin moves (offset_ray)
     l: vec3<f32>,      // radiance gathered so far
-    pad1: u32,
+    tri: u32,          // the hit triangle (BVH order), which rays leaving it skip
 }
 
 // Mirrors gpu::layout::Pixel: what the shade kernel writes for each ray.

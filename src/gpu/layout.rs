@@ -40,7 +40,9 @@ pub struct Params {
     pub pad0: u32,
     pub pad1: u32,
     pub pad2: u32,
-    pub pad3: u32,
+    /// 0: a value the shader compiler cannot know, which hides the compensated sums of
+    /// `shared/compensated.wgsl` from its algebra.
+    pub opaque_zero: u32,
     /// The sampler's sample index of this pass, its seed, `flags::*` and the render's samples
     /// per pixel.
     pub sample: u32,
@@ -105,8 +107,10 @@ pub struct RayState {
     /// The closest hit's barycentrics of v1 and v2 (point data is interpolated with them).
     pub b1: f32,
     pub b2: f32,
+    /// The triangle (BVH order) a secondary ray leaves and skips, or `NONE`.
+    pub skip: u32,
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 100);
+const _: () = assert!(std::mem::size_of::<RayState>() == 104);
 
 /// `RayState.status` values.
 pub mod status {
@@ -261,7 +265,8 @@ pub struct Path {
     pub err: f32,
     /// Radiance gathered so far.
     pub l: [f32; 3],
-    pub pad1: u32,
+    /// The hit triangle (BVH order), which rays leaving it skip.
+    pub tri: u32,
 }
 const _: () = assert!(std::mem::size_of::<Path>() == 80);
 

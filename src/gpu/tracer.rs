@@ -677,6 +677,7 @@ impl<'g> Tracer<'g> {
                     prim: NONE,
                     wait_block: NONE,
                     flags: ray_flags,
+                    skip: NONE,
                     ..RayState::default()
                 })
                 .collect();

@@ -87,7 +87,7 @@ fn every_member_reads_back_through_the_shader() {
         dc_root_row: 121,
         dc_fault_cap: 122,
         pad2: 123,
-        pad3: 124,
+        opaque_zero: 124,
         attr_block0: 125,
         albedo_stride: 126,
         pad4: 127,
@@ -135,6 +135,7 @@ fn every_member_reads_back_through_the_shader() {
             hit_error: 24.5,
             b1: 25.5,
             b2: 26.5,
+            skip: 27,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -154,6 +155,7 @@ fn every_member_reads_back_through_the_shader() {
             hit_error: 1e-7,
             b1: 0.25,
             b2: 0.5,
+            skip: u32::MAX,
         },
     ];
     let out = tracer.probe(params, &rays, &shading).unwrap();
@@ -215,7 +217,7 @@ fn host_structs_match_naga_layouts() {
         "dc_lines" => dc_lines, "dc_map" => dc_map, "dc_cache_row" => dc_cache_row,
         "dc_root_row" => dc_root_row, "dc_fault_cap" => dc_fault_cap, "rect_x" => rect_x,
         "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
-        "pad1" => pad1, "pad2" => pad2, "pad3" => pad3, "sample" => sample, "seed" => seed,
+        "pad1" => pad1, "pad2" => pad2, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
         "flags" => flags, "spp" => spp, "attr_block0" => attr_block0,
         "albedo_stride" => albedo_stride, "pad4" => pad4, "pad5" => pad5,
     });
@@ -227,7 +229,7 @@ fn host_structs_match_naga_layouts() {
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
         "hx" => hit_point, "hy" => hit_point + 4, "hz" => hit_point + 8, "herr" => hit_error,
-        "b1" => b1, "b2" => b2,
+        "b1" => b1, "b2" => b2, "skip" => skip,
     });
     sized(w, size_of::<RayState>());
     let w = same_layout!(MeshInfo, "MeshInfo", {
@@ -270,7 +272,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<ShadeParams>());
     let w = same_layout!(Path, "Path", {
         "pos" => pos, "alive" => alive, "n" => n, "depth" => depth, "albedo" => albedo,
-        "pixel" => pixel, "tp" => tp, "err" => err, "l" => l, "pad1" => pad1,
+        "pixel" => pixel, "tp" => tp, "err" => err, "l" => l, "tri" => tri,
     });
     sized(w, size_of::<Path>());
     let w = same_layout!(MirrorCase, "MirrorCase", {

@@ -321,3 +321,77 @@ fn colormap_matches_the_gpu_bit_for_bit() {
     // The cases reach every bin, the first and the last included.
     assert_eq!(bins.len(), 256, "bins reached: {}", bins.len());
 }
+
+/// `dot_difference(n, v, o)` (shared/compensated.wgsl), the extended-precision plane distance of
+/// the triangle test, against the exact value: within its documented bound, u |exact| + 2^-38
+/// sum |n_k| (|v_k| + |o_k|), where plain f32 is off by far more. Points on planes through o's
+/// neighbourhood seen from far and near (1e-6..1e9 away), the cancellation of a huge triangle
+/// seen close up.
+#[test]
+fn dot_difference_on_the_gpu_is_within_its_bound_of_the_exact_value() {
+    let gpu = gpu();
+    let mut m = Rng(7);
+    let mut cases = Vec::new();
+    for _ in 0..4096 {
+        let n = m.normal();
+        let t1 = normalize3(cross3(n, m.normal()));
+        let t2 = normalize3(cross3(n, t1));
+        let (n, t1, t2) = (n.map(f64::from), t1.map(f64::from), t2.map(f64::from));
+        let o: [f32; 3] = [0; 3].map(|_| m.coord());
+        let reach = 10f64.powf(15.0 * f64::from(m.unit()) - 6.0);
+        let height = 10f64.powf(8.0 * f64::from(m.unit()) - 6.0) * f64::from(o[0].abs() + 1.0);
+        let (a, b) = (f64::from(m.unit()) - 0.5, f64::from(m.unit()) - 0.5);
+        let v: [f32; 3] = std::array::from_fn(|k| {
+            (f64::from(o[k]) + height * n[k] + reach * (a * t1[k] + b * t2[k])) as f32
+        });
+        cases.push(MirrorCase {
+            p: [v[0], v[1], v[2], 0.0],
+            n: [n[0] as f32, n[1] as f32, n[2] as f32, 0.0],
+            u: [o[0], o[1], o[2], 0.0],
+            ..MirrorCase::default()
+        });
+    }
+    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let (mut bad, mut plain_bad) = (0, 0);
+    for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
+        let exact: f64 = (0..3)
+            .map(|k| f64::from(c.n[k]) * (f64::from(c.p[k]) - f64::from(c.u[k])))
+            .sum();
+        let mag: f64 = (0..3)
+            .map(|k| f64::from(c.n[k].abs()) * (f64::from(c.p[k].abs()) + f64::from(c.u[k].abs())))
+            .sum();
+        let bound = exact.abs() * 2f64.powi(-24) + mag * 2f64.powi(-38) + 1e-36;
+        let got = f64::from(r.sample[2]);
+        if (got - exact).abs() > bound {
+            bad += 1;
+            if bad <= 5 {
+                eprintln!("case {i}: {c:?}: got {got:e}, exact {exact:e}, bound {bound:e}");
+            }
+        }
+        let plain: f32 = (0..3).map(|k| c.n[k] * (c.p[k] - c.u[k])).sum();
+        plain_bad += usize::from((f64::from(plain) - exact).abs() > bound);
+    }
+    eprintln!(
+        "dot_difference: {bad} of {} beyond the bound (plain f32: {plain_bad})",
+        cases.len()
+    );
+    assert!(
+        plain_bad > cases.len() / 4,
+        "the cases need extended precision"
+    );
+    assert_eq!(bad, 0, "dot_difference beyond its bound");
+}
+
+fn cross3(a: [f32; 3], b: [f32; 3]) -> [f64; 3] {
+    let (a, b) = (a.map(f64::from), b.map(f64::from));
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn normalize3(v: [f64; 3]) -> [f32; 3] {
+    let l = v.iter().map(|c| c * c).sum::<f64>().sqrt();
+    v.map(|c| (c / l) as f32)
+}
