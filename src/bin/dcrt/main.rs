@@ -325,6 +325,12 @@ struct BenchArgs {
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Fuzz every mesh loader for this many seconds each with mutations of the shipped files
+    /// (scenes/meshes/, tests/data/vtk/; run from the repository): counts of inputs read and
+    /// refused, and any input that panics, breaks a loader's promise or takes over a second,
+    /// saved in fuzz-crashes/.
+    #[arg(long)]
+    fuzz_loaders: Option<f64>,
     /// Memory soak: render an orbit of this many frames in one process (rank --rank of
     /// --virtual-ranks with the first of --caches, `none` replicating) and report resident
     /// memory at intervals and its slope in bytes per frame.
