@@ -113,3 +113,14 @@ fn parallel_projection_matches_the_reference() {
     };
     check("bumpy parallel", model, camera);
 }
+
+#[test]
+fn visualization_examples_match_the_reference() {
+    // The shipped STL, legacy VTK, glTF and VTK XML examples, through their scenes.
+    for name in ["formats.toml", "isosurface.toml"] {
+        let scene = scene(name);
+        let model = scene.load_model().unwrap();
+        let camera = scene.camera_or_default(&model);
+        check(name, model, camera);
+    }
+}

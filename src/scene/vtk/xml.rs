@@ -981,7 +981,8 @@ mod tests {
         let head = "AgAAAAAAAAAoAAAAAAAAABAAAAAAAAAA";
         assert!(text.contains(head));
         assert_err(
-            text.replacen(head, "AgAAAAAAAAAoAAAAAAAAABAAAAAAAAA=", 1).as_bytes(),
+            text.replacen(head, "AgAAAAAAAAAoAAAAAAAAABAAAAAAAAA=", 1)
+                .as_bytes(),
             "point array 'temperature' (line 6)",
             "its header has 23 bytes, not 24",
         );
