@@ -107,7 +107,11 @@ fn fuzz(format: &'static str, seeds: &[Vec<u8>], time: Duration, crashes: &Path)
         seeds: seeds.len(),
         ..Tally::default()
     };
-    let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ format.len() as u64 * 0x1234_5678);
+    // A seed of its own per format (FNV-1a of the name): reproducible, and never 0.
+    let seed = format.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    let mut rng = Rng(seed | 1);
     let start = Instant::now();
     let origin = PathBuf::from(format!("fuzz.{format}"));
     while start.elapsed() < time {
