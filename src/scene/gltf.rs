@@ -102,7 +102,9 @@ fn check_position_accessors(bytes: &[u8], origin: &Path) -> Result<()> {
         Ok(glb) => glb.json.into_owned(),
         Err(_) => bytes.to_vec(),
     };
-    let Ok(j) = serde_json::from_slice::<serde_json::Value>(&json) else {
+    // Lossy: the crate skips the strings it ignores without checking their UTF-8, so a file
+    // with a damaged name must still be checked.
+    let Ok(j) = serde_json::from_str::<serde_json::Value>(&String::from_utf8_lossy(&json)) else {
         return Ok(());
     };
     let accessors = j["accessors"].as_array().map_or(0, Vec::len) as u64;
@@ -202,6 +204,9 @@ fn type_name(t: DataType) -> &'static str {
         DataType::F32 => "float32",
     }
 }
+
+/// Most elements an accessor without a buffer view (all zeros but its sparse values) may have.
+const MAX_ZERO_ELEMENTS: usize = 1 << 24;
 
 struct Reader<'a> {
     doc: &'a gltf::Gltf,
@@ -445,35 +450,48 @@ impl Reader<'_> {
             }
         };
         let elem = size * got;
+        // Checked before anything is allocated: the count is the file's word.
+        let view = match a.view() {
+            Some(view) => {
+                let stride = view.stride().unwrap_or(elem);
+                let data = self.view_bytes(&view)?;
+                let start = a.offset();
+                if stride < elem {
+                    return Err(format!(
+                        "{at}: byteStride {stride} is below its element size {elem}"
+                    ));
+                }
+                let end = count
+                    .checked_sub(1)
+                    .and_then(|c| c.checked_mul(stride))
+                    .and_then(|x| x.checked_add(start))
+                    .and_then(|x| x.checked_add(elem));
+                match end {
+                    Some(e) if e <= data.len() => {}
+                    _ => {
+                        return Err(format!(
+                            "{at}: {count} elements from byte {start} run past its buffer view ({} bytes)",
+                            data.len()
+                        ));
+                    }
+                }
+                Some((data, start, stride))
+            }
+            // Zeros (and sparse values): nothing in the file bounds the count.
+            None if count > MAX_ZERO_ELEMENTS => {
+                return Err(format!(
+                    "{at}: {count} elements without a buffer view (at most {MAX_ZERO_ELEMENTS})"
+                ));
+            }
+            None => None,
+        };
         let mut out = vec![0f64; count * comps];
         let mut fill = |k: usize, b: &[u8]| {
             for c in 0..comps {
                 out[k * comps + c] = decode(&b[c * size..]);
             }
         };
-        if let Some(view) = a.view() {
-            let stride = view.stride().unwrap_or(elem);
-            let data = self.view_bytes(&view)?;
-            let start = a.offset();
-            if stride < elem {
-                return Err(format!(
-                    "{at}: byteStride {stride} is below its element size {elem}"
-                ));
-            }
-            let end = count
-                .checked_sub(1)
-                .and_then(|c| c.checked_mul(stride))
-                .and_then(|x| x.checked_add(start))
-                .and_then(|x| x.checked_add(elem));
-            match end {
-                Some(e) if e <= data.len() => {}
-                _ => {
-                    return Err(format!(
-                        "{at}: {count} elements from byte {start} run past its buffer view ({} bytes)",
-                        data.len()
-                    ));
-                }
-            }
+        if let Some((data, start, stride)) = view {
             for k in 0..count {
                 fill(k, &data[start + k * stride..]);
             }
@@ -751,6 +769,42 @@ pub(crate) mod tests {
             assoc: Assoc::Point,
         };
         assert!(parse_gltf(&no_pressure, Path::new("t.gltf"), &keep).is_ok());
+    }
+
+    /// Found by `dcrt bench --fuzz-loaders`: a huge accessor count allocated its values before
+    /// its bytes were checked (an abort for want of 96 GiB), and an ignored key with invalid
+    /// UTF-8 hid a POSITION index from the check before gltf-json's validation (a panic).
+    #[test]
+    fn fuzzing_findings_are_errors() {
+        let huge = |view: bool| {
+            quad_gltf(&|j| {
+                j["accessors"][2]["count"] = 4294967295u32.into();
+                if !view {
+                    // Zeros but for sparse values: no buffer view bounds the count.
+                    j["accessors"][2].as_object_mut().unwrap().remove("bufferView");
+                    j["accessors"][2]["sparse"] = serde_json::json!({"count": 1,
+                        "indices": {"bufferView": 1, "componentType": 5123},
+                        "values": {"bufferView": 2}});
+                }
+            })
+        };
+        assert_err(
+            &huge(true),
+            "mesh 0 primitive 0",
+            "accessor 2: 4294967295 elements from byte 0 run past its buffer view (16 bytes)",
+        );
+        assert_err(
+            &huge(false),
+            "mesh 0 primitive 0",
+            "accessor 2: 4294967295 elements without a buffer view (at most 16777216)",
+        );
+        let mut b = quad_gltf(&|_| {});
+        let at = |b: &[u8], what: &[u8]| b.windows(what.len()).position(|w| w == what).unwrap();
+        let k = at(&b, b"\"accessors\"");
+        b[k + 6] = b'1';
+        let k = at(&b, b"VEC3");
+        b[k + 3] = 0xb1;
+        assert_err(&b, "mesh 0 primitive 0", "POSITION names accessor 0, the file has 0");
     }
 
     #[test]

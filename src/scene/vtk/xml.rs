@@ -607,6 +607,13 @@ impl<'a> File<'a> {
             }
             other => return Err(fail(format!("unknown format '{}'", snippet(other)))),
         };
+        // Whatever the encoding promised (a compressed block may inflate to less).
+        if (bytes.len() as u64) < want {
+            return Err(fail(format!(
+                "{} bytes of data, the array needs {want}",
+                bytes.len()
+            )));
+        }
         let s = ty.size();
         for i in 0..n {
             let v = ty.decode(&bytes[i as usize * s..], self.big);
@@ -985,6 +992,22 @@ mod tests {
                 .as_bytes(),
             "point array 'temperature' (line 6)",
             "its header has 23 bytes, not 24",
+        );
+    }
+
+    /// Found by `dcrt bench --fuzz-loaders`: appended base64 data with a padding character in
+    /// the middle decoded to fewer bytes than the array needs (it panicked).
+    #[test]
+    fn short_appended_data_is_an_error() {
+        let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/vtk/poly-base64-raw-32.vtp");
+        let mut b = std::fs::read(file).unwrap();
+        assert_eq!(b[4121], b'A');
+        b[4121] = b'=';
+        assert_err(
+            &b,
+            "cell array 'region' (line 30)",
+            "19 bytes of data, the array needs 20",
         );
     }
 
