@@ -781,7 +781,10 @@ pub(crate) mod tests {
                 j["accessors"][2]["count"] = 4294967295u32.into();
                 if !view {
                     // Zeros but for sparse values: no buffer view bounds the count.
-                    j["accessors"][2].as_object_mut().unwrap().remove("bufferView");
+                    j["accessors"][2]
+                        .as_object_mut()
+                        .unwrap()
+                        .remove("bufferView");
                     j["accessors"][2]["sparse"] = serde_json::json!({"count": 1,
                         "indices": {"bufferView": 1, "componentType": 5123},
                         "values": {"bufferView": 2}});
@@ -804,7 +807,11 @@ pub(crate) mod tests {
         b[k + 6] = b'1';
         let k = at(&b, b"VEC3");
         b[k + 3] = 0xb1;
-        assert_err(&b, "mesh 0 primitive 0", "POSITION names accessor 0, the file has 0");
+        assert_err(
+            &b,
+            "mesh 0 primitive 0",
+            "POSITION names accessor 0, the file has 0",
+        );
     }
 
     #[test]
