@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, DejaVu fonts (the text of `bench --figures`), and cargo-nextest. Installs only
-# what is missing; safe to run again.
+# crate), Open MPI, DejaVu fonts (the text of `--legend` and `bench --figures`), and
+# cargo-nextest. Installs only what is missing; safe to run again.
 set -euo pipefail
 
 packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core)

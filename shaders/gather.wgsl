@@ -13,6 +13,8 @@
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
+// Colour by data: the albedo kernel's colour of each bounce ray's hit (see shade.wgsl).
+@group(1) @binding(4) var<storage, read> albedos: array<vec4<f32>>;
 
 fn unoccluded(r: RayState) -> bool {
     return r.status == DONE && r.hit == NONE;
@@ -75,7 +77,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             path.err = r.herr;
             path.tri = r.hit;
             path.n = select(n, -n, dot(n, d) > 0.0);
-            path.albedo = meshes[mesh_of(r.prim)].color.xyz;
+            let mesh = meshes[mesh_of(r.prim)];
+            path.albedo = select(mesh.color.xyz, albedos[base + kb].xyz, mesh.look != LOOK_CONSTANT);
             path.depth += 1u;
             if path.depth >= shading.max_depth {
                 path.alive = 0u;

@@ -1,5 +1,5 @@
 // Mirror test (tests only): evaluates the shared functions that have CPU twins (src/mirror/,
-// dc::cache_line of the input over 4, and bvh::Node::child_box) on the host's inputs, one case per invocation, so the
+// dc::cache_line of the input over 4, bvh::Node::child_box, colormap and srgb_color) on the host's inputs, one case per invocation, so the
 // tests can compare the twins with the GPU.
 #import params
 #import tiles
@@ -7,6 +7,7 @@
 #import offset
 #import dc
 #import node
+#import colormap
 #import compensated
 
 // Mirrors gpu::layout::MirrorCase.
@@ -16,6 +17,7 @@ struct MirrorCase {
     u: vec4<f32>,      // cosine_dir's sample (xy)
     words: vec4<u32>,  // hash input, sample2's pixel, dim, index (child_box's slot: index % 4)
     node: array<vec4<u32>, 4>,  // child_box's node
+    c: vec4<f32>,      // colormap's s, lo, scale (map: words.z % 4; srgb_color's word: words.x)
 }
 
 // Mirrors gpu::layout::MirrorResult.
@@ -26,6 +28,8 @@ struct MirrorResult {
     words: vec4<u32>,    // hash(input), tile_pixel(invocation) in yz, cache_line(input)
     lo: vec4<f32>,       // child_box(node, node_step(node), slot)
     hi: vec4<f32>,
+    color: vec4<f32>,    // colormap(c.x, c.y, c.z, words.z % 4)
+    rgb: vec4<f32>,      // srgb_color(words.x)
 }
 
 @group(1) @binding(0) var<storage, read> mirror_in: array<MirrorCase>;
@@ -49,5 +53,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let b = child_box(n, node_step(n), c.words.w % 4u);
     r.lo = vec4(b.lo, 0.0);
     r.hi = vec4(b.hi, 0.0);
+    r.color = vec4(colormap(c.c.x, c.c.y, c.c.z, c.words.z % 4u), 0.0);
+    r.rgb = vec4(srgb_color(c.words.x), 0.0);
     mirror_out[i] = r;
 }

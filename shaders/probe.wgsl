@@ -48,6 +48,7 @@ fn main() {
     put(p.rect_x); put(p.rect_y); put(p.rect_w); put(p.rect_h);
     put(p.pad0); put(p.pad1); put(p.pad2); put(p.opaque_zero);
     put(p.sample); put(p.seed); put(p.flags); put(p.spp);
+    put(p.attr_block0); put(p.albedo_stride); put(p.pad4); put(p.pad5);
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);
         let n = node_at(locate(l.x), l.y);
@@ -72,12 +73,14 @@ fn main() {
         put(r.cur_index); put(r.cur_count); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
         put(r.wait_block); put(r.flags);
-        putf(r.hx); putf(r.hy); putf(r.hz); putf(r.herr); put(r.skip);
+        putf(r.hx); putf(r.hy); putf(r.hz); putf(r.herr);
+        putf(r.b1); putf(r.b2); put(r.skip);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];
         put4(m.color);
-        put(m.first_prim); put(m.pad0); put(m.pad1); put(m.pad2);
+        put(m.first_prim); put(m.look); put(m.point); put(m.map);
+        putf(m.lo); putf(m.scale); put(m.pad0); put(m.pad1);
     }
     let s = probe_shading;
     put4(s.sky); put4(s.sun_dir); put4(s.sun);

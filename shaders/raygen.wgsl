@@ -1,7 +1,8 @@
 // Ray generation for one batch of 8x8 tiles: one invocation per ray, pixel centres exactly as
-// docs/ARCHITECTURE.md (Cameras and rays) defines them (jittered by the sampler when JITTER is
-// set). Valid rays are appended to the live list; with CULL, a ray that misses the (padded) root box is done at once
-// and skips traversal: its result, a miss, is what traversal would give.
+// docs/ARCHITECTURE.md (Cameras and rays) defines them for a perspective or a parallel camera
+// (jittered by the sampler when JITTER is set). Valid rays are appended to the live list; with
+// CULL, a ray that misses the (padded) root box is done at once and skips traversal: its result,
+// a miss, is what traversal would give.
 #import params
 #import ray
 #import tiles
@@ -43,8 +44,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         let sx = 2.0 * (f32(px) + j.x) / f32(params.width) - 1.0;
         let sy = 1.0 - 2.0 * (f32(py) + j.y) / f32(params.height);
-        let d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
-        let o = params.origin.xyz;
+        var d = normalize(params.forward.xyz + sx * params.right.xyz + sy * params.up.xyz);
+        var o = params.origin.xyz;
+        // A parallel projection: every ray along the view, from its place on the image plane.
+        if (params.flags & PARALLEL) != 0u {
+            d = normalize(params.forward.xyz);
+            o = params.origin.xyz + sx * params.right.xyz + sy * params.up.xyz;
+        }
         var r = new_ray(o, d, FAR, LIVE, FROM_CAMERA, NONE);
         if lx >= params.rect_w || ly >= params.rect_h || !finite3(d) || !finite3(o) {
             r.status = OUTSIDE;

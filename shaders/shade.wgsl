@@ -13,6 +13,8 @@
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
+// Colour by data: the albedo kernel's colour of each hit on a mesh coloured by data.
+@group(1) @binding(4) var<storage, read> albedos: array<vec4<f32>>;
 
 const AMBIENT: f32 = 0.15;
 const POS_INF: u32 = 0x7f800000u;
@@ -39,7 +41,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if hit {
         let n = vec3(r.nx, r.ny, r.nz);
         let d = ray_dir(r);
-        let albedo = meshes[mesh_of(r.prim)].color.xyz;
+        let mesh = meshes[mesh_of(r.prim)];
+        let albedo = select(mesh.color.xyz, albedos[i].xyz, mesh.look != LOOK_CONSTANT);
         if MODE == MODE_CAST {
             c = albedo * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, d)));
         } else {

@@ -286,6 +286,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let e = hit_point_error(tri, hit_b);
             r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
             r.prim = prim_id_at(hit_row, hit_slot);
+            r.b1 = hit_b.y;
+            r.b2 = hit_b.z;
         }
         if !valid {
             r.status = OUTSIDE;

@@ -9,9 +9,11 @@
 pub mod blocks;
 pub mod bvh;
 pub mod cluster;
+pub mod colormap;
 pub mod dc;
 pub mod error;
 pub mod gpu;
+pub mod legend;
 pub mod mirror;
 pub mod output;
 pub mod prepare;

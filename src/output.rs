@@ -372,6 +372,21 @@ pub fn write_png_exposed(path: &Path, frame: &Frame, exposure: f32) -> Result<()
     save_png(path, &to_rgb8_exposed(frame, exposure))
 }
 
+/// A PNG of the frame exposed by `exposure` stops, with the colour legend drawn over it when
+/// given (`--legend`).
+pub fn write_png_legend(
+    path: &Path,
+    frame: &Frame,
+    exposure: f32,
+    legend: Option<&crate::legend::Legend>,
+) -> Result<()> {
+    let mut img = to_rgb8_exposed(frame, exposure);
+    if let Some(l) = legend {
+        l.draw(&mut img)?;
+    }
+    save_png(path, &img)
+}
+
 /// Writes an 8-bit sRGB image.
 /// Writes an 8-bit sRGB image, encoded in memory and then written with `write_atomic`.
 pub fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {

@@ -45,6 +45,12 @@ struct Params {
     seed: u32,
     flags: u32,
     spp: u32,
+    // Colour by data: the first attribute block; the albedo kernel reads ray slots
+    // albedo_stride * i + albedo_stride - 1 (1: primary rays; a wave's fan: its bounce rays).
+    attr_block0: u32,
+    albedo_stride: u32,
+    pad4: u32,
+    pad5: u32,
 }
 
 // Params.flags
@@ -52,5 +58,6 @@ const JITTER: u32 = 1u;        // jitter primary rays in the pixel (spp > 1)
 const CULL: u32 = 2u;          // primary rays that miss the root box skip traversal
 const FIRST_SAMPLE: u32 = 4u;  // the first pass of a render: the shade kernel resets pixels
 const SAMPLER_INDEPENDENT: u32 = 8u;  // sample2 hashes independent uniforms (default: Sobol')
+const PARALLEL: u32 = 16u;     // a parallel projection: rays along forward from the image plane
 
 @group(0) @binding(0) var<uniform> params: Params;

@@ -35,6 +35,8 @@ struct RayState {
     // origin must move to be past its rounding error (hit_point_error, offset_distance).
     hx: f32, hy: f32, hz: f32,
     herr: f32,
+    // The closest hit's barycentrics of v1 and v2: point data is interpolated with them.
+    b1: f32, b2: f32,
     // The triangle (BVH order) a secondary ray leaves, which it cannot hit again (a ray meets a
     // plane once), or NONE: skipping it saves proving, in extended precision, that its hit lies
     // behind the origin.
@@ -51,7 +53,7 @@ const FROM_CAMERA: u32 = 2u;
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32, skip: u32)
     -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
-                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, skip);
+                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, skip);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

@@ -59,6 +59,47 @@ pub fn meta(m: &Meta, format: Format, node_blocks: u32, tri_blocks: u32) -> Resu
     }
     m.camera.validate().map_err(|e| e.to_string())?;
     crate::scene::check_image_size(m.width, m.height).map_err(|e| e.to_string())?;
+    looks(m, format)
+}
+
+/// The looks fit the mesh table and the attribute layout fits the looks and the triangles.
+fn looks(m: &Meta, format: Format) -> Result<(), String> {
+    use crate::scene::color::Look;
+    if !m.looks.is_empty() && m.looks.len() != m.mesh_first.len() {
+        return Err(format!(
+            "{} looks for {} mesh-table entries",
+            m.looks.len(),
+            m.mesh_first.len()
+        ));
+    }
+    for (i, l) in m.looks.iter().enumerate() {
+        match l {
+            Look::Scalars { array, range, .. }
+                if array.is_empty()
+                    || !(range[0].is_finite() && range[1].is_finite() && range[0] <= range[1]) =>
+            {
+                return Err(format!("look {i}: not an array and a finite range"));
+            }
+            Look::Colors { array, .. } if array.is_empty() => {
+                return Err(format!("look {i}: no array"));
+            }
+            _ => {}
+        }
+    }
+    let uses = m.looks.iter().any(Look::uses_attributes);
+    let corners = m.looks.iter().any(Look::per_corner);
+    let want = match (uses, corners) {
+        (false, _) => 0,
+        (true, false) => 1,
+        (true, true) => 3,
+    };
+    let layout = super::AttrLayout::new(format, want, m.triangles);
+    if m.attrs != layout {
+        return Err(format!(
+            "attribute layout {:?} does not fit the looks and triangles ({layout:?})",
+            m.attrs
+        ));
+    }
     Ok(())
 }
 
@@ -72,7 +113,21 @@ pub fn block(
     node_blocks: u32,
     m: &Meta,
 ) -> Result<(), String> {
-    if k < node_blocks {
+    let tri_blocks = m.triangles.div_ceil(u64::from(format.tris_per_block()));
+    if u64::from(k) >= u64::from(node_blocks) + tri_blocks {
+        // Attributes: any bits are a colour the kernels can map; only the padding after the
+        // last triangle's words must be zero.
+        let w = m.attrs.words;
+        let per = u64::from(format.attrs_per_block(w));
+        let first = (u64::from(k) - u64::from(node_blocks) - tri_blocks) * per;
+        let used = m.triangles.saturating_sub(first).min(per) * u64::from(w);
+        if words[used as usize..].iter().any(|&x| x != 0) {
+            return Err(format!(
+                "attribute block past triangle {}: non-zero padding",
+                m.triangles
+            ));
+        }
+    } else if k < node_blocks {
         let npb = format.nodes_per_block();
         for s in 0..npb {
             let i = u64::from(k) * u64::from(npb) + u64::from(s);

@@ -6,7 +6,7 @@
 //! | offset | bytes | field |
 //! |--------|-------|-------|
 //! | 0 | 8 | magic `DCRTBLK\0` |
-//! | 8 | 4 | version (3) |
+//! | 8 | 4 | version (4) |
 //! | 12 | 4 | block size in bytes |
 //! | 16 | 4 | node blocks |
 //! | 20 | 4 | triangle blocks |
@@ -14,12 +14,14 @@
 //! | 28 | 4 | metadata length M |
 //! | 32 | 8 | offset of the first block (a multiple of 4096) |
 //! | 40 | 4 | CRC-32 of bytes 0..40 and the metadata |
-//! | 44 | M | metadata: JSON (`Meta`: camera, image, meshes, bounds, BVH depth) |
+//! | 44 | M | metadata: JSON (`Meta`: camera, image, meshes and their looks, bounds, BVH depth, attribute layout) |
 //! | 44+M | 4 per block | CRC-32 of each block |
-//! | data | block size per block | the blocks in id order |
+//! | data | block size per block | the blocks in id order (nodes, triangles, then attributes) |
 //!
 //! Version 1 had no header checksum: a flipped bit in the metadata rendered another view.
-//! Version 2 held binary 32-byte nodes; version 3 holds 4-wide quantized ones (`bvh::Node`).
+//! Version 2 held binary 32-byte nodes; version 3 holds 4-wide quantized ones (`bvh::Node`);
+//! version 4 adds the meshes' looks and the attribute blocks of models coloured by data (their
+//! count is in the metadata).
 //! Older versions are refused with a request to prepare the file again. On load the metadata is checked against the
 //! header (counts, bounds, mesh table) and every block read is checked for structure (child and
 //! leaf ranges, see `check`), so an edited block whose CRC was recomputed is refused too.
@@ -34,7 +36,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: &[u8; 8] = b"DCRTBLK\0";
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 const FIXED: usize = 44;
 const ALIGN: u64 = 4096;
 
@@ -55,6 +57,12 @@ pub struct Meta {
     pub bounds_max: [f32; 3],
     /// The scene file it was prepared from, for people.
     pub source: String,
+    /// How each mesh-table entry is coloured (empty: all by their colour).
+    #[serde(default)]
+    pub looks: Vec<crate::scene::color::Look>,
+    /// The attribute blocks after the triangle blocks.
+    #[serde(default)]
+    pub attrs: super::AttrLayout,
 }
 
 /// Writes the block file through `output::write_atomic`: a failed write leaves no half file.
@@ -89,7 +97,8 @@ pub struct BlockWriter<'w> {
 }
 
 impl<'w> BlockWriter<'w> {
-    /// Writes the header and metadata of a file of `node_blocks` + `tri_blocks` blocks into `w`
+    /// Writes the header and metadata of a file of `node_blocks` + `tri_blocks` blocks (and the
+    /// attribute blocks `meta.attrs` declares) into `w`
     /// (a file written by `output::write_atomic` for `path`, which errors name).
     pub fn start(
         w: &'w mut BufWriter<File>,
@@ -101,7 +110,9 @@ impl<'w> BlockWriter<'w> {
     ) -> Result<BlockWriter<'w>> {
         let io = |e| Error::io(path, e);
         let json = serde_json::to_vec(meta).map_err(|e| Error::Invalid(e.to_string()))?;
-        let n = u64::from(node_blocks) + u64::from(tri_blocks);
+        // The attribute blocks (colours by data) follow the triangle blocks; their count is in
+        // the metadata, as `DcbFile::open` reads it.
+        let n = u64::from(node_blocks) + u64::from(tri_blocks) + u64::from(meta.attrs.blocks);
         if n > u64::from(u32::MAX) {
             return Err(Error::Invalid(format!(
                 "model needs {n} blocks, more than 2^32"
@@ -239,10 +250,10 @@ impl DcbFile {
             return Err(bad("format version 0 is not valid".into()));
         }
         if version < VERSION {
-            let why = if version == 1 {
-                "has no header checksum"
-            } else {
-                "holds binary BVH nodes"
+            let why = match version {
+                1 => "has no header checksum",
+                2 => "holds binary BVH nodes",
+                _ => "predates colour attributes",
             };
             return Err(bad(format!(
                 "format version {version} {why} (this dcrt reads {VERSION}); \
@@ -255,19 +266,10 @@ impl DcbFile {
             return Err(bad(format!("root block {root}: only 0 is supported")));
         }
         let data = u64::from_le_bytes(head[32..40].try_into().unwrap_or_default());
-        let n = u64::from(node_blocks) + u64::from(tri_blocks);
-        let need = data + n * u64::from(format.block_bytes);
-        if data < FIXED as u64 + meta_len + 4 * n || need > len || n == 0 {
+        if FIXED as u64 + meta_len > len {
             return Err(bad(format!(
-                "truncated or inconsistent: the header describes {n} blocks of {} bytes \
-                 ({need} bytes in all), the file has {len}",
-                format.block_bytes
-            )));
-        }
-        if need < len {
-            return Err(bad(format!(
-                "{} bytes after the last block: not the file that was prepared",
-                len - need
+                "truncated: {len} bytes, shorter than the header and its {meta_len} bytes of \
+                 metadata"
             )));
         }
         let mut json = vec![0u8; meta_len as usize];
@@ -282,6 +284,22 @@ impl DcbFile {
             .map_err(|e| bad(format!("metadata is not valid: {e}")))?;
         super::check::meta(&meta, format, node_blocks, tri_blocks)
             .map_err(|m| bad(format!("metadata: {m}")))?;
+        // The attribute blocks' count is in the (checked) metadata.
+        let n = u64::from(node_blocks) + u64::from(tri_blocks) + u64::from(meta.attrs.blocks);
+        let need = data + n * u64::from(format.block_bytes);
+        if data < FIXED as u64 + meta_len + 4 * n || need > len || n == 0 {
+            return Err(bad(format!(
+                "truncated or inconsistent: the header describes {n} blocks of {} bytes \
+                 ({need} bytes in all), the file has {len}",
+                format.block_bytes
+            )));
+        }
+        if need < len {
+            return Err(bad(format!(
+                "{} bytes after the last block: not the file that was prepared",
+                len - need
+            )));
+        }
         let mut table = vec![0u8; 4 * n as usize];
         file.read_exact(&mut table)
             .map_err(|e| Error::io(path, e))?;
@@ -302,7 +320,7 @@ impl DcbFile {
     }
 
     pub fn count(&self) -> u32 {
-        self.node_blocks + self.tri_blocks
+        self.node_blocks + self.tri_blocks + self.meta.attrs.blocks
     }
 
     /// CRC-32 of the checksum table (see `Blocks::fingerprint`).
@@ -348,6 +366,7 @@ impl DcbFile {
             format: self.format,
             node_blocks: self.node_blocks,
             tri_blocks: self.tri_blocks,
+            attrs: self.meta.attrs,
             words,
         };
         super::check::depth(&blocks, self.meta.bvh_depth)
@@ -402,6 +421,8 @@ mod tests {
             bounds_min: model.bounds.min,
             bounds_max: model.bounds.max,
             source: "test".into(),
+            looks: Vec::new(),
+            attrs: Default::default(),
         };
         (blocks, meta)
     }
@@ -449,7 +470,7 @@ mod tests {
         b[0] = b'X';
         check(&b, "bad magic");
         let mut b = good.clone();
-        b[8] = 4;
+        b[8] = 5;
         check(&b, "newer");
         let mut b = good.clone();
         b[8] = 1;
@@ -457,6 +478,9 @@ mod tests {
         let mut b = good.clone();
         b[8] = 2;
         check(&b, "version 2 holds binary BVH nodes");
+        let mut b = good.clone();
+        b[8] = 3;
+        check(&b, "version 3 predates colour attributes");
         // One flipped bit in the metadata: another camera, caught by the header checksum.
         let mut b = good.clone();
         let at = FIXED + find(&b[FIXED..], b"\"focal_point\":[").unwrap() + 15;

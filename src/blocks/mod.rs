@@ -9,6 +9,11 @@
 //!   xyz) from word 0, then their primitive ids (one u32 each) from word `9 * tris_per_block`;
 //!   zeros after. Keeping the id in the block costs 4 bytes a triangle and means the block a ray
 //!   hits is all it needs to report the id.
+//! - attribute block (only in models coloured by data, after the triangle blocks): the colour
+//!   attributes of `block_bytes / (4 words)` triangles in BVH triangle order, `words` (1 or 3)
+//!   each: a scalar's f32 bits or a packed 8-bit sRGB colour, per triangle (cell data) or per
+//!   corner (point data, in the triangle's vertex order); zeros after. Only shading reads them,
+//!   so traversal never fetches them (docs/ARCHITECTURE.md, Colour by data).
 
 pub mod check;
 pub mod file;
@@ -24,6 +29,28 @@ const TRI_WORDS: u32 = 9;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Format {
     pub block_bytes: u32,
+}
+
+/// A model's attribute blocks: none (`words` 0), or `blocks` blocks of `words` words per
+/// triangle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct AttrLayout {
+    pub words: u32,
+    pub blocks: u32,
+}
+
+impl AttrLayout {
+    /// The layout of `triangles` triangles' attributes of `words` words each (0: none).
+    pub fn new(format: Format, words: u32, triangles: u64) -> AttrLayout {
+        if words == 0 {
+            return AttrLayout::default();
+        }
+        let per = u64::from(format.attrs_per_block(words));
+        AttrLayout {
+            words,
+            blocks: triangles.div_ceil(per) as u32,
+        }
+    }
 }
 
 impl Format {
@@ -65,6 +92,11 @@ impl Format {
         block[s * w..(s + 1) * w].copy_from_slice(bytemuck::cast_slice(tri));
         block[self.id_word() as usize + s] = id;
     }
+
+    /// Triangles per attribute block at `words` words each.
+    pub fn attrs_per_block(&self, words: u32) -> u32 {
+        self.words() / words.max(1)
+    }
 }
 
 impl Default for Format {
@@ -81,6 +113,8 @@ pub struct Blocks {
     pub format: Format,
     pub node_blocks: u32,
     pub tri_blocks: u32,
+    /// The attribute blocks after the triangle blocks.
+    pub attrs: AttrLayout,
     pub words: Vec<u32>,
 }
 
@@ -114,12 +148,54 @@ impl Blocks {
             format,
             node_blocks: node_blocks as u32,
             tri_blocks: tri_blocks as u32,
+            attrs: AttrLayout::default(),
             words,
         })
     }
 
+    /// Appends the attribute blocks of `attrs` (primitive-id order) in the BVH's triangle order.
+    pub fn with_attributes(
+        mut self,
+        bvh: &Bvh,
+        attrs: &crate::scene::color::Attributes,
+    ) -> Result<Blocks> {
+        let w = attrs.words as usize;
+        let n = bvh.triangles.len();
+        if !(w == 1 || w == 3) || attrs.data.len() != n * w {
+            return Err(Error::Internal(format!(
+                "{} attribute words for {n} triangles of {w}",
+                attrs.data.len()
+            )));
+        }
+        let layout = AttrLayout::new(self.format, attrs.words, n as u64);
+        if u64::from(self.count()) + u64::from(layout.blocks) > u64::from(u32::MAX) {
+            return Err(Error::Invalid("model needs more than 2^32 blocks".into()));
+        }
+        let per = self.format.attrs_per_block(attrs.words) as usize;
+        let bw = self.format.words() as usize;
+        let start = self.words.len();
+        self.words.resize(start + layout.blocks as usize * bw, 0);
+        for (t, &prim) in bvh.prim_ids.iter().enumerate() {
+            let at = start + (t / per) * bw + (t % per) * w;
+            let from = prim as usize * w;
+            self.words[at..at + w].copy_from_slice(&attrs.data[from..from + w]);
+        }
+        self.attrs = layout;
+        Ok(self)
+    }
+
     pub fn count(&self) -> u32 {
-        self.node_blocks + self.tri_blocks
+        self.node_blocks + self.tri_blocks + self.attrs.blocks
+    }
+
+    /// The attribute words of triangle `t` (BVH order): the CPU mirror of the `albedo` kernel's
+    /// read.
+    pub fn attribute(&self, t: u32) -> &[u32] {
+        let w = self.attrs.words;
+        let per = self.format.attrs_per_block(w);
+        let b = self.block(self.node_blocks + self.tri_blocks + t / per);
+        let at = ((t % per) * w) as usize;
+        &b[at..at + w as usize]
     }
 
     /// CRC-32 of the per-block CRC-32 table: equal to the block file's `fingerprint` when

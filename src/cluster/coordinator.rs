@@ -17,9 +17,11 @@ pub fn run(
     rank: u32,
     opts: &Options,
     image: Image,
+    legend: Option<crate::legend::Legend>,
 ) -> Result<()> {
     let mut balancer = (rank == roles.balancer()).then(|| Balancer::new(roles, opts, image));
-    let mut display = (rank == Roles::DISPLAY).then(|| Display::new(roles, rank, opts, image));
+    let mut display =
+        (rank == Roles::DISPLAY).then(|| Display::new(roles, rank, opts, image, legend));
     while balancer.as_ref().is_some_and(|b| !b.finished())
         || display.as_ref().is_some_and(|d| !d.finished())
     {

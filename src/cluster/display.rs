@@ -58,10 +58,18 @@ pub struct Display<'a> {
     shown: Vec<f64>,
     /// Each frame's figures, for the statistics file.
     report: Vec<serde_json::Value>,
+    /// Drawn on every PNG (`--legend`).
+    legend: Option<crate::legend::Legend>,
 }
 
 impl<'a> Display<'a> {
-    pub fn new(roles: Roles, rank: u32, opts: &'a Options, image: Image) -> Display<'a> {
+    pub fn new(
+        roles: Roles,
+        rank: u32,
+        opts: &'a Options,
+        image: Image,
+        legend: Option<crate::legend::Legend>,
+    ) -> Display<'a> {
         let wire = if opts.exr.is_some() {
             Wire::Full
         } else {
@@ -80,6 +88,7 @@ impl<'a> Display<'a> {
             start: super::clock::epoch(),
             shown: Vec::new(),
             report: Vec::new(),
+            legend,
         }
     }
 
@@ -153,11 +162,12 @@ impl<'a> Display<'a> {
             }
         }
         let (opts, rank, roles, wire) = (opts.clone(), self.rank, self.roles, self.wire);
+        let legend = self.legend.clone();
         self.writers.push(std::thread::spawn(move || {
             // The display benchmark measures receiving and assembling frames; only its last
             // frame is encoded, to show what was received.
             if !opts.display_bench || f + 1 == opts.frames {
-                write_frame(&opts, f, buf, wire)?;
+                write_frame(&opts, f, buf, wire, legend.as_ref())?;
             }
             if let Some(dir) = &opts.trace {
                 write_events(dir, f, rank, roles, events)?;
@@ -218,18 +228,27 @@ fn summarize(f: u32, render: &[FrameReport], span_ms: f64, opts: &Options) {
     );
 }
 
-fn write_frame(opts: &Options, f: u32, buf: FrameBuf, wire: Wire) -> Result<()> {
+fn write_frame(
+    opts: &Options,
+    f: u32,
+    buf: FrameBuf,
+    wire: Wire,
+    legend: Option<&crate::legend::Legend>,
+) -> Result<()> {
     let png = output::numbered(&opts.output, f, opts.frames);
     match wire {
         Wire::Rgb8 => {
             let (w, h) = (buf.width, buf.height);
-            let img = image::RgbImage::from_raw(w, h, buf.into_bytes())
+            let mut img = image::RgbImage::from_raw(w, h, buf.into_bytes())
                 .ok_or_else(|| Error::Internal("frame buffer of the wrong size".into()))?;
+            if let Some(l) = legend {
+                l.draw(&mut img)?;
+            }
             output::save_png(&png, &img)
         }
         Wire::Full => {
             let frame = buf.into_frame();
-            output::write_png_exposed(&png, &frame, opts.exposure)?;
+            output::write_png_legend(&png, &frame, opts.exposure, legend)?;
             if let Some(exr) = &opts.exr {
                 output::write_exr(&output::numbered(exr, f, opts.frames), &frame, &opts.aovs)?;
             }

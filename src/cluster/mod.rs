@@ -142,6 +142,10 @@ pub struct Options {
     /// Where rank 0 writes the run's figures as JSON (frame times, the render ranks'
     /// statistics, the display benchmark).
     pub stats: Option<PathBuf>,
+    /// The display draws the colour legend on the PNGs (`render::legend_of`).
+    pub legend: bool,
+    /// A camera replacing the model's (`--camera` FILE.pvcc).
+    pub camera: Option<crate::scene::Camera>,
 }
 
 /// Runs this process's role of a cluster render. Returns only on rank 0's success or a clean

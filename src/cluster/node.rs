@@ -40,7 +40,9 @@ pub fn run(opts: &Options) -> Result<()> {
     clock::agree(&world);
     let result = match (opened.role, render_comm) {
         (Role::Render(r), Some(comm)) => render_rank::run(&world, &comm, roles, rank, opts, *r),
-        (Role::Coordinator, _) => coordinator::run(&world, roles, rank, opts, opened.image),
+        (Role::Coordinator, _) => {
+            coordinator::run(&world, roles, rank, opts, opened.image, opened.legend)
+        }
         _ => Err(Error::Mpi("a render rank without its communicator".into())),
     };
     if let Err(e) = result {

@@ -27,6 +27,8 @@ pub struct Opened {
     /// What every rank must agree on, as `Report` words.
     report: Report,
     pub role: Role,
+    /// The display's colour legend, with `--legend`.
+    pub legend: Option<crate::legend::Legend>,
 }
 
 pub enum Role {
@@ -142,6 +144,10 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             .map_or(0, |_| memory::exr_channels(&opts.aovs));
         memory::check_image_with_exr(image.width, image.height, exr, memory::available())?;
     }
+    let legend = match rank == Roles::DISPLAY && opts.legend {
+        true => Some(crate::render::legend_of(&opts.input)?),
+        false => None,
+    };
     // Applied here, after the scene is read, so that a rank that cannot read it still takes
     // part in the agreement.
     let shading = opts.shade.apply(of.shading)?;
@@ -151,9 +157,13 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             image,
             report,
             role: Role::Coordinator,
+            legend,
         });
     };
-    let loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
+    let mut loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
+    if let Some(c) = opts.camera {
+        loaded.camera = c;
+    }
     let gpu = Gpu::new(opts.adapter.as_deref())?;
     let dc = match opts.cache {
         // A single render rank owns every block: a cache would only slow its pipelines down.
@@ -174,6 +184,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     Ok(Opened {
         image,
         report,
+        legend,
         role: Role::Render(Box::new(RenderSetup {
             loaded,
             gpu,

@@ -23,6 +23,8 @@ pub struct Batch {
     pub stats: wgpu::Buffer,
     pub pixels: wgpu::Buffer,
     paths: wgpu::Buffer,
+    /// Colour by data: the albedo of each ray slot's hit (a placeholder without attributes).
+    pub albedos: wgpu::Buffer,
     /// A `RoundReadback`.
     pub readback: wgpu::Buffer,
     /// Two GPU timestamps around each submission's trace rounds, and their resolve buffer.
@@ -62,6 +64,7 @@ impl Batch {
         max_rays: u32,
         lines: u32,
         fault_cap: u32,
+        albedos: bool,
     ) -> Result<Batch> {
         let limit = gpu.storage_limit();
         let ray_bytes = size_of::<RayState>() as u64;
@@ -115,6 +118,9 @@ impl Batch {
             U::MAP_READ | U::COPY_DST,
         );
         let paths = gpu.buffer("paths", n * path_bytes, U::STORAGE);
+        // Only models coloured by data have attribute blocks to resolve hits' albedos from.
+        let albedo_bytes = if albedos { n * 16 } else { 16 };
+        let albedos = gpu.buffer("albedos", albedo_bytes, U::STORAGE | U::COPY_DST);
         let fault_readback = gpu.buffer(
             "fault readback",
             fault_bytes(fault_cap),
@@ -148,6 +154,7 @@ impl Batch {
             stats,
             pixels,
             paths,
+            albedos,
             readback,
             timestamps,
             fault_readback,
@@ -169,6 +176,7 @@ impl Batch {
             "stats" => &self.stats,
             "pixels" => &self.pixels,
             "paths" => &self.paths,
+            "albedos" => &self.albedos,
             _ => return None,
         })
     }

@@ -189,10 +189,18 @@ pub struct Kernels {
     pub probe: Kernel,
     pub spawn: Option<Kernel>,
     pub gather: Option<Kernel>,
+    /// Colour by data: only models with attribute blocks get it.
+    pub albedo: Option<Kernel>,
 }
 
 impl Kernels {
-    pub fn new(gpu: &Gpu, store: Store, constants: &[(&'static str, f64)], mode: Mode) -> Kernels {
+    pub fn new(
+        gpu: &Gpu,
+        store: Store,
+        constants: &[(&'static str, f64)],
+        mode: Mode,
+        albedo: bool,
+    ) -> Kernels {
         let mut c = constants.to_vec();
         c.push(("MODE", f64::from(mode as u32)));
         let k = |name| Kernel::new(gpu, name, store, &c);
@@ -205,6 +213,7 @@ impl Kernels {
             probe: k("probe"),
             spawn: waves.then(|| k("spawn")),
             gather: waves.then(|| k("gather")),
+            albedo: albedo.then(|| k("albedo")),
         }
     }
 }

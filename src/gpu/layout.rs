@@ -49,8 +49,15 @@ pub struct Params {
     pub seed: u32,
     pub flags: u32,
     pub spp: u32,
+    /// Colour by data: the first attribute block, and the ray slots the `albedo` kernel reads,
+    /// `albedo_stride * i + albedo_stride - 1` (1: every primary ray; a wave's fan: its bounce
+    /// rays).
+    pub attr_block0: u32,
+    pub albedo_stride: u32,
+    pub pad4: u32,
+    pub pad5: u32,
 }
-const _: () = assert!(std::mem::size_of::<Params>() == 192);
+const _: () = assert!(std::mem::size_of::<Params>() == 208);
 
 /// `Params.flags` and `RayState.flags` values.
 pub mod flags {
@@ -62,6 +69,8 @@ pub mod flags {
     pub const FIRST_SAMPLE: u32 = 4;
     /// Params: `sample2` hashes independent uniform numbers (default: Owen-scrambled Sobol').
     pub const SAMPLER_INDEPENDENT: u32 = 8;
+    /// Params: a parallel projection (rays along `forward` from the image plane).
+    pub const PARALLEL: u32 = 16;
     /// RayState: stop at the first hit found.
     pub const ANY_HIT: u32 = 1;
     /// RayState: the ray starts at the camera, on no surface (no proof of a positive hit
@@ -95,10 +104,13 @@ pub struct RayState {
     /// moves a new ray's origin past its rounding error.
     pub hit_point: [f32; 3],
     pub hit_error: f32,
+    /// The closest hit's barycentrics of v1 and v2 (point data is interpolated with them).
+    pub b1: f32,
+    pub b2: f32,
     /// The triangle (BVH order) a secondary ray leaves and skips, or `NONE`.
     pub skip: u32,
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 96);
+const _: () = assert!(std::mem::size_of::<RayState>() == 104);
 
 /// `RayState.status` values.
 pub mod status {
@@ -108,15 +120,32 @@ pub mod status {
     pub const OVERFLOW: u32 = 3;
 }
 
-/// `MeshInfo` in `shaders/shared/scene.wgsl`.
+/// `MeshInfo` in `shaders/shared/scene.wgsl`: a mesh-table entry's first primitive, colour and
+/// look.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MeshInfo {
     pub color: [f32; 4],
     pub first_prim: u32,
-    pub pad: [u32; 3],
+    /// `look::*`.
+    pub look: u32,
+    /// 1: attributes per corner (point data), 0: per triangle.
+    pub point: u32,
+    /// Colormap index (`colormap::Colormap::index`).
+    pub map: u32,
+    /// The range's start and `colormap::scale` of it.
+    pub lo: f32,
+    pub scale: f32,
+    pub pad: [u32; 2],
 }
-const _: () = assert!(std::mem::size_of::<MeshInfo>() == 32);
+const _: () = assert!(std::mem::size_of::<MeshInfo>() == 48);
+
+/// `MeshInfo.look` values.
+pub mod look {
+    pub const CONSTANT: u32 = 0;
+    pub const SCALARS: u32 = 1;
+    pub const COLORS: u32 = 2;
+}
 
 /// `Pixel` in `shaders/shared/shading.wgsl`: the shade kernel's output for one ray.
 #[repr(C)]
@@ -265,6 +294,9 @@ pub struct MirrorCase {
     pub words: [u32; 4],
     /// `child_box`'s node (`bvh::Node`'s words).
     pub node: [u32; 16],
+    /// `colormap`'s value, range start and scale (its map: `words[2] % 4`; `srgb_color`'s
+    /// word: `words[0]`).
+    pub c: [f32; 4],
 }
 
 /// `MirrorResult` in `shaders/mirror.wgsl` (tests): what the GPU computed for one case.
@@ -279,4 +311,7 @@ pub struct MirrorResult {
     /// `child_box` of the case's node and slot.
     pub lo: [f32; 4],
     pub hi: [f32; 4],
+    /// `colormap` and `srgb_color` of the case.
+    pub color: [f32; 4],
+    pub rgb: [f32; 4],
 }

@@ -87,6 +87,11 @@ pub fn run_mirror(
     let unused: Vec<wgpu::Buffer> = (0..6)
         .map(|_| gpu.buffer("unused", 32, U::STORAGE))
         .collect();
+    let palette = init(
+        "palette",
+        bytemuck::cast_slice(&crate::colormap::palette()),
+        U::STORAGE,
+    );
     let bound = kernel.bind(gpu, |name| match name {
         "params" => Some(params_buf.as_entire_binding()),
         "mirror_in" => Some(input.as_entire_binding()),
@@ -97,6 +102,7 @@ pub fn run_mirror(
         "waiters" => Some(unused[3].as_entire_binding()),
         "touched" => Some(unused[4].as_entire_binding()),
         "line_used" => Some(unused[5].as_entire_binding()),
+        "palette" => Some(palette.as_entire_binding()),
         _ => None,
     });
     let mut enc = gpu.device.create_command_encoder(&Default::default());

@@ -168,6 +168,58 @@ impl Tracer<'_> {
         }
     }
 
+    /// Colour by data: the albedo of every hit on a mesh coloured by data, from the attribute
+    /// blocks, for the ray slots `Params::albedo_stride` names (docs/ARCHITECTURE.md, Colour by
+    /// data). With a distributed cache an absent attribute block is a fault: the round's faults
+    /// are served as the trace rounds' are and the kernel runs again, skipping the slots already
+    /// resolved, until a dispatch faults on nothing. A model without attributes does nothing.
+    pub(super) fn resolve_albedos(&mut self, stats: &mut FrameStats) -> Result<()> {
+        if self.kernels.albedo.is_none() {
+            return Ok(());
+        }
+        let gpu = self.gpu;
+        gpu.write(&self.params_buf, &self.params);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.batch.albedos, 0, None);
+        let groups = self.params.batch_rays.div_ceil(WORKGROUP);
+        for round in 0.. {
+            self.clear_faults(&mut enc);
+            if let (Some(k), Some(b)) = (&self.kernels.albedo, &self.bound.albedo) {
+                k.dispatch(&mut enc, b, Dispatch::Direct(groups), None);
+            }
+            let Some(dc) = &self.dc else {
+                gpu.queue.submit([enc.finish()]);
+                return Ok(());
+            };
+            let bufs = &self.dc_bufs;
+            let b = &self.batch;
+            let bytes = fault_bytes(self.params.dc_fault_cap);
+            enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
+            let wait_bytes = 4 * u64::from(dc.policy.lines());
+            enc.copy_buffer_to_buffer(&bufs.waiters, 0, &b.waiter_readback, 0, wait_bytes);
+            let r = &b.waiter_readback;
+            enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
+            let submitted = Instant::now();
+            gpu.queue.submit([enc.finish()]);
+            let faults = gpu.map_read(&self.batch.fault_readback)?;
+            let waiters = gpu.map_read(&self.batch.waiter_readback)?;
+            let waited = submitted.elapsed();
+            let header: FaultHeader =
+                bytemuck::pod_read_unaligned(&faults[..size_of::<FaultHeader>()]);
+            if header.count == 0 {
+                return Ok(());
+            }
+            let waiting: u32 =
+                bytemuck::pod_collect_to_vec::<u8, u32>(&waiters[..wait_bytes as usize])
+                    .iter()
+                    .sum();
+            let when = (submitted, waited, None);
+            self.serve_faults(&faults, &waiters, waiting, round, when, stats)?;
+            enc = gpu.device.create_command_encoder(&Default::default());
+        }
+        Ok(())
+    }
+
     /// GPU timestamps at a pass's (beginning, end), when the adapter has them: the rounds' GPU
     /// time is measured from the first trace pass to the last `args` pass.
     fn stamps(&self, begin: bool, end: bool) -> Option<wgpu::ComputePassTimestampWrites<'_>> {

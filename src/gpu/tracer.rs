@@ -9,10 +9,12 @@
 use super::Gpu;
 use super::batch::{Batch, Lists, TILE_RAYS, fault_bytes};
 use super::kernels::{Bound, Dispatch, Kernels};
-use super::layout::{Counter, MeshInfo, NONE, Params, Pixel, RayState, ShadeParams, flags, status};
+use super::layout::{
+    Counter, MeshInfo, NONE, Params, Pixel, RayState, ShadeParams, flags, look, status,
+};
 use super::shaders::Store;
 use super::store::{BlockStore, Rows};
-use crate::blocks::Format;
+use crate::blocks::{AttrLayout, Format};
 use crate::dc::policy::CachePolicy;
 use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
@@ -68,12 +70,53 @@ impl Default for Settings {
     }
 }
 
-/// Each mesh's first primitive id and colour: all the tracer needs to know of the scene besides
-/// its blocks.
+/// Each mesh-table entry's first primitive id, colour and look: all the tracer needs to know of
+/// the scene besides its blocks.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Meshes {
     pub first_prim: Vec<u32>,
     pub colors: Vec<[f32; 3]>,
+    /// One per entry, or empty: all by their colour.
+    pub looks: Vec<crate::scene::color::Look>,
+}
+
+impl Meshes {
+    /// The GPU's mesh table.
+    pub fn infos(&self) -> Vec<MeshInfo> {
+        use crate::scene::color::Look;
+        self.colors
+            .iter()
+            .zip(&self.first_prim)
+            .enumerate()
+            .map(|(i, (c, &f))| {
+                let mut m = MeshInfo {
+                    color: [c[0], c[1], c[2], 1.0],
+                    first_prim: f,
+                    ..MeshInfo::default()
+                };
+                match self.looks.get(i) {
+                    None | Some(Look::Constant) => {}
+                    Some(Look::Scalars {
+                        colormap,
+                        range,
+                        cell,
+                        ..
+                    }) => {
+                        m.look = look::SCALARS;
+                        m.point = u32::from(!cell);
+                        m.map = colormap.index();
+                        m.lo = range[0];
+                        m.scale = crate::colormap::scale(range[0], range[1]);
+                    }
+                    Some(Look::Colors { cell, .. }) => {
+                        m.look = look::COLORS;
+                        m.point = u32::from(!cell);
+                    }
+                }
+                m
+            })
+            .collect()
+    }
 }
 
 /// A model as one GPU holds it: every block (replicated), or its resident rows plus a cache.
@@ -81,6 +124,8 @@ pub struct GpuModel<'a> {
     pub format: Format,
     pub node_blocks: u32,
     pub tri_blocks: u32,
+    /// The attribute blocks after the triangle blocks (none without colour by data).
+    pub attrs: AttrLayout,
     /// Words of the resident rows: all blocks in id order when replicated; with a DC, the
     /// rank's own blocks by slot, then the root block unless the rank owns it
     /// (`dc::Ranks::resident_row`).
@@ -132,6 +177,7 @@ pub(super) struct BoundKernels {
     pub shade: Bound,
     pub spawn: Option<Bound>,
     pub gather: Option<Bound>,
+    pub albedo: Option<Bound>,
 }
 
 /// Pipeline constants fixed for a model (block addressing, DC).
@@ -144,6 +190,8 @@ pub struct Tracer<'g> {
     pub(super) params: Params,
     pub(super) params_buf: wgpu::Buffer,
     meshes_buf: wgpu::Buffer,
+    /// The colormaps and the sRGB decode table (`colormap::palette`).
+    palette_buf: wgpu::Buffer,
     pub(super) shade_buf: wgpu::Buffer,
     pub(super) batch: Batch,
     settings: Settings,
@@ -180,7 +228,8 @@ impl<'g> Tracer<'g> {
             )));
         }
         let format = model.format;
-        let blocks = model.node_blocks + model.tri_blocks;
+        let attrs = model.attrs;
+        let blocks = model.node_blocks + model.tri_blocks + attrs.blocks;
         let lines = dc.as_ref().map_or(0, |d| d.lines);
         let rows = Rows {
             format,
@@ -195,22 +244,21 @@ impl<'g> Tracer<'g> {
             ("TRIS_PER_BLOCK", f64::from(format.tris_per_block())),
             ("TEXELS_PER_BLOCK", f64::from(format.texels())),
             ("ROWS_PER_LAYER", f64::from(store.rows_per_layer())),
+            (
+                "ATTRS_PER_BLOCK",
+                f64::from(format.attrs_per_block(attrs.words)),
+            ),
+            ("ATTR_WORDS", f64::from(attrs.words.max(1))),
         ];
-        let kernels = Kernels::new(gpu, settings.store, &constants, settings.shading.mode);
-        let meshes: Vec<MeshInfo> = model
-            .meshes
-            .colors
-            .iter()
-            .zip(&model.meshes.first_prim)
-            .map(|(c, &f)| MeshInfo {
-                color: [c[0], c[1], c[2], 1.0],
-                first_prim: f,
-                pad: [0; 3],
-            })
-            .collect();
+        let colored = attrs.words > 0;
+        let mode = settings.shading.mode;
+        let kernels = Kernels::new(gpu, settings.store, &constants, mode, colored);
+        let meshes = model.meshes.infos();
         let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
         use wgpu::BufferUsages as U;
         let meshes_buf = init("meshes", bytemuck::cast_slice(&meshes), U::STORAGE);
+        let palette = crate::colormap::palette();
+        let palette_buf = init("palette", bytemuck::cast_slice(&palette), U::STORAGE);
         // A visit pushes at most WIDTH - 1 entries per level.
         let stack_size = model
             .depth
@@ -222,6 +270,8 @@ impl<'g> Tracer<'g> {
             mesh_count: meshes.len() as u32,
             node_blocks: model.node_blocks,
             dc_ranks: 1,
+            attr_block0: model.node_blocks + model.tri_blocks,
+            albedo_stride: 1,
             ..Params::default()
         };
         let (dc, dc_bufs) = match dc {
@@ -308,7 +358,14 @@ impl<'g> Tracer<'g> {
             size_of::<ShadeParams>() as u64,
             U::STORAGE | U::COPY_DST,
         );
-        let batch = Batch::new(gpu, stack_size, settings.max_batch_rays, lines, FAULT_CAP)?;
+        let batch = Batch::new(
+            gpu,
+            stack_size,
+            settings.max_batch_rays,
+            lines,
+            FAULT_CAP,
+            colored,
+        )?;
         let mut tracer = Tracer {
             gpu,
             bound: BoundKernels::placeholder(),
@@ -316,6 +373,7 @@ impl<'g> Tracer<'g> {
             params,
             params_buf,
             meshes_buf,
+            palette_buf,
             shade_buf,
             batch,
             settings,
@@ -342,6 +400,7 @@ impl<'g> Tracer<'g> {
             "blocks" => return Some(self.store.resource()),
             "params" => &self.params_buf,
             "meshes" => &self.meshes_buf,
+            "palette" => &self.palette_buf,
             "shading" => &self.shade_buf,
             "block_rows" => &self.dc_bufs.rows,
             "faults" => &self.dc_bufs.faults,
@@ -369,6 +428,7 @@ impl<'g> Tracer<'g> {
             shade: k.shade.bind(gpu, with(fill)),
             spawn: k.spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             gather: k.gather.as_ref().map(|g| g.bind(gpu, with(fill))),
+            albedo: k.albedo.as_ref().map(|a| a.bind(gpu, with(fill))),
         }
     }
 
@@ -383,7 +443,8 @@ impl<'g> Tracer<'g> {
         shading.validate()?;
         if shading.mode != self.settings.shading.mode {
             let st = self.settings.store;
-            self.kernels = Kernels::new(self.gpu, st, &self.constants, shading.mode);
+            let colored = self.kernels.albedo.is_some();
+            self.kernels = Kernels::new(self.gpu, st, &self.constants, shading.mode, colored);
             self.bound = self.bind_kernels();
         }
         self.settings.shading = shading;
@@ -494,16 +555,24 @@ impl<'g> Tracer<'g> {
                     | match sh.sampler {
                         Sampler::Sobol => 0,
                         Sampler::Independent => flags::SAMPLER_INDEPENDENT,
-                    };
+                    }
+                    | if basis.parallel { flags::PARALLEL } else { 0 };
                 let t = Instant::now();
+                self.params.albedo_stride = 1;
                 stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);
                 let t2 = Instant::now();
                 stats.trace_seconds += (t2 - t).as_secs_f64();
+                self.resolve_albedos(stats)?;
                 self.run(&self.kernels.shade, &self.bound.shade);
                 for _ in 0..waves {
                     let t = Instant::now();
+                    self.params.albedo_stride = fan;
                     let live = self.trace_batch(stats, Gen::Secondary { fan })?;
                     stats.trace_seconds += t.elapsed().as_secs_f64();
+                    // Only path tracing shades the hits of secondary rays.
+                    if sh.mode == crate::shading::Mode::Path {
+                        self.resolve_albedos(stats)?;
+                    }
                     stats.secondary_rays += u64::from(live);
                     stats.traced_rays += u64::from(live);
                     if let (Some(g), Some(b)) = (&self.kernels.gather, &self.bound.gather) {
@@ -707,6 +776,7 @@ impl BoundKernels {
             shade: Bound::empty(),
             spawn: None,
             gather: None,
+            albedo: None,
         }
     }
 }

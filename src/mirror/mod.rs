@@ -3,6 +3,7 @@
 //! use these where they must agree with the GPU. Integer functions agree bit for bit; float ones
 //! within a few ulps (WGSL allows less precise `cos`, `sqrt` and division).
 
+pub mod colormap;
 pub mod offset;
 pub mod sampling;
 pub mod tiles;

@@ -48,6 +48,8 @@ pub struct Report {
     pub triangles: u64,
     pub node_blocks: u32,
     pub tri_blocks: u32,
+    /// Attribute blocks (colours by data), after the triangle blocks; 0 out of core.
+    pub attr_blocks: u32,
     pub block_bytes: u32,
     pub depth: u32,
     /// Out of core: the parts, the largest's triangles and the most a part may have; `None`
@@ -69,13 +71,31 @@ pub struct Parts {
 
 impl Report {
     pub fn bytes(&self) -> u64 {
-        (u64::from(self.node_blocks) + u64::from(self.tri_blocks)) * u64::from(self.block_bytes)
+        let blocks = u64::from(self.node_blocks) + u64::from(self.tri_blocks);
+        (blocks + u64::from(self.attr_blocks)) * u64::from(self.block_bytes)
     }
 }
 
 /// Prepares `scene` into the block file `output`.
 pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
     let t = Instant::now();
+    if let Some(why) = scene.needs_whole_meshes() {
+        // Colours by data and glTF parts are carried by `load_model` only: in memory or not at
+        // all, never silently dropped.
+        let model = scene.load_model()?;
+        let limit = o.budget.in_core_triangles();
+        if model.triangles.len() as u64 > limit {
+            return Err(Error::Invalid(format!(
+                "{}: {why}, which only an in-memory build carries, but its {} triangles are \
+                 more than the {limit} that --memory {} MiB builds in memory; raise --memory",
+                scene.path.display(),
+                model.triangles.len(),
+                o.budget.bytes >> 20
+            )));
+        }
+        let read = t.elapsed().as_secs_f64();
+        return in_core(scene, model, output, o, t, read);
+    }
     let mut scratch = None;
     let bar = o.progress.counter("reading triangles");
     let mut intake = Intake {
@@ -108,6 +128,8 @@ pub fn prepare(scene: &Scene, output: &Path, o: &Options) -> Result<Report> {
             triangles: held,
             mesh_first,
             colors,
+            looks: Vec::new(),
+            attributes: None,
             bounds: streamed.bounds,
         };
         return in_core(scene, model, output, o, t, read);
@@ -150,6 +172,7 @@ fn in_core(
         triangles: p.model.triangles.len() as u64,
         node_blocks: p.blocks.node_blocks,
         tri_blocks: p.blocks.tri_blocks,
+        attr_blocks: p.blocks.attrs.blocks,
         block_bytes: o.format.block_bytes,
         depth: p.bvh.depth,
         parts: None,
@@ -287,6 +310,9 @@ fn out_of_core(
         bounds_min: input.bounds.min,
         bounds_max: input.bounds.max,
         source: scene.path.display().to_string(),
+        // Streamed meshes are coloured by mesh (`Scene::needs_whole_meshes`).
+        looks: Vec::new(),
+        attrs: Default::default(),
     };
     let bar = o.progress.bar(
         u64::from(node_blocks) + u64::from(tri_blocks),
@@ -303,6 +329,7 @@ fn out_of_core(
         triangles: count,
         node_blocks,
         tri_blocks,
+        attr_blocks: 0,
         block_bytes: format.block_bytes,
         depth: joined.depth,
         parts: Some(Parts {

@@ -31,9 +31,9 @@ pub fn reference_image(
         .into_par_iter()
         .map(|i| {
             let (x, y) = (i % w, i / w);
-            let d = basis.dir(x, y);
+            let (o, d) = basis.pixel_ray(x, y);
             let ray = Ray {
-                origin: basis.origin,
+                origin: o.map(|c| c as f32),
                 dir: d.map(|c| c as f32),
                 tmax: f32::INFINITY,
             };

@@ -308,6 +308,7 @@ mod tests {
             focal_point: [0.0, 0.0, 0.0],
             view_up: [0.0, 0.0, 1.0],
             view_angle: 40.0,
+            parallel_scale: None,
         };
         assert_eq!(View::Orbit(c).camera(0, 4), c.orbit(0.0));
         let half = View::Orbit(c).camera(2, 4);

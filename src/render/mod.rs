@@ -40,7 +40,10 @@ impl Prepared {
         load_seconds: f64,
     ) -> Result<Prepared> {
         let bvh = Bvh::build(&model, preset, format.nodes_per_block() as usize);
-        let blocks = Blocks::pack(&bvh, format)?;
+        let mut blocks = Blocks::pack(&bvh, format)?;
+        if let Some(a) = &model.attributes {
+            blocks = blocks.with_attributes(&bvh, a)?;
+        }
         Ok(Prepared {
             model,
             bvh,
@@ -53,6 +56,7 @@ impl Prepared {
         Meshes {
             first_prim: self.model.mesh_first.clone(),
             colors: self.model.colors.clone(),
+            looks: self.model.looks.clone(),
         }
     }
 
@@ -97,6 +101,8 @@ impl Prepared {
             bounds_min: self.model.bounds.min,
             bounds_max: self.model.bounds.max,
             source: scene.path.display().to_string(),
+            looks: self.model.looks.clone(),
+            attrs: self.blocks.attrs,
         }
     }
 }
@@ -173,6 +179,7 @@ impl Loaded {
             meshes: Meshes {
                 first_prim: m.mesh_first.clone(),
                 colors: m.colors.clone(),
+                looks: m.looks.clone(),
             },
             depth: m.bvh_depth,
             triangles: m.triangles,
@@ -256,14 +263,15 @@ impl Loaded {
         resident: &[u32],
         setup: DcSetup,
     ) -> Result<Tracer<'g>> {
-        let (node_blocks, tri_blocks) = match &self.source {
-            Source::Built(b) => (b.node_blocks, b.tri_blocks),
-            Source::File(f) => (f.node_blocks, f.tri_blocks),
+        let (node_blocks, tri_blocks, attrs) = match &self.source {
+            Source::Built(b) => (b.node_blocks, b.tri_blocks, b.attrs),
+            Source::File(f) => (f.node_blocks, f.tri_blocks, f.meta.attrs),
         };
         let model = GpuModel {
             format: self.format(),
             node_blocks,
             tri_blocks,
+            attrs,
             resident,
             meshes: &self.meshes,
             depth: self.depth,
@@ -300,6 +308,28 @@ impl Loaded {
             background: scene.background,
             shading: scene.shading,
         })
+    }
+}
+
+/// The colour legend of what `path` renders (`--legend`), without building the model: from a
+/// block file's metadata, or by loading only a scene's meshes that are coloured by data (their
+/// ranges are all the legend needs). What a cluster's display draws.
+pub fn legend_of(path: &Path) -> Result<crate::legend::Legend> {
+    match Input::resolve(path)? {
+        Input::Dcb(dcb, scene) => {
+            let f = DcbFile::open(&dcb)?;
+            let bg = scene.map_or(f.meta.background, |s| s.background);
+            crate::legend::Legend::new(&f.meta.looks, bg)
+        }
+        Input::Scene(mut scene) => {
+            scene.meshes.retain(|m| m.color_by.is_some());
+            let looks = if scene.meshes.is_empty() {
+                Vec::new()
+            } else {
+                scene.load_model()?.looks
+            };
+            crate::legend::Legend::new(&looks, scene.background)
+        }
     }
 }
 
@@ -386,6 +416,7 @@ fn tracer<'g>(
         format: blocks.format,
         node_blocks: blocks.node_blocks,
         tri_blocks: blocks.tri_blocks,
+        attrs: blocks.attrs,
         resident: &blocks.words,
         meshes,
         depth,

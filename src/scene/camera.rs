@@ -15,11 +15,17 @@ pub struct Camera {
     pub view_up: [f64; 3],
     /// Vertical field of view in degrees.
     pub view_angle: f64,
+    /// Parallel (orthographic) projection with this half-height of the view in world units
+    /// (ParaView's CameraParallelScale); `None`: perspective.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parallel_scale: Option<f64>,
 }
 
 /// The camera reduced to what ray generation needs, in f32 exactly as the GPU gets it. The ray of
-/// pixel (x, y) is `normalize(forward + sx * right + sy * up)` with `sx = 2(x+0.5)/w - 1` and
-/// `sy = 1 - 2(y+0.5)/h`; `right` and `up` already carry `tan(view_angle/2)` and the aspect.
+/// pixel (x, y) is `normalize(forward + sx * right + sy * up)` from `origin`, with
+/// `sx = 2(x+0.5)/w - 1` and `sy = 1 - 2(y+0.5)/h`; `right` and `up` already carry
+/// `tan(view_angle/2)` and the aspect. With a parallel projection every ray goes along `forward`
+/// from `origin + sx * right + sy * up`, `right` and `up` carrying the parallel scale instead.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CameraBasis {
     pub origin: [f32; 3],
@@ -28,6 +34,7 @@ pub struct CameraBasis {
     pub up: [f32; 3],
     pub width: u32,
     pub height: u32,
+    pub parallel: bool,
 }
 
 impl Camera {
@@ -65,6 +72,13 @@ impl Camera {
                 self.view_angle
             )));
         }
+        if let Some(s) = self.parallel_scale
+            && !(s > 0.0 && (s as f32).is_finite())
+        {
+            return Err(Error::Invalid(format!(
+                "camera: parallel_scale must be finite and positive, got {s}"
+            )));
+        }
         Ok(())
     }
 
@@ -73,7 +87,10 @@ impl Camera {
         let f = (DVec3::from(self.focal_point) - DVec3::from(self.position)).normalize();
         let r = f.cross(DVec3::from(self.view_up)).normalize();
         let u = r.cross(f);
-        let h = (self.view_angle.to_radians() / 2.0).tan();
+        let h = match self.parallel_scale {
+            Some(s) => s,
+            None => (self.view_angle.to_radians() / 2.0).tan(),
+        };
         let a = f64::from(width) / f64::from(height);
         let f32v = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
         CameraBasis {
@@ -83,6 +100,7 @@ impl Camera {
             up: f32v(u * h),
             width,
             height,
+            parallel: self.parallel_scale.is_some(),
         }
     }
 
@@ -111,8 +129,21 @@ impl Camera {
 }
 
 impl CameraBasis {
-    /// The normalized direction of pixel (x, y)'s ray, computed in f64 from the f32 basis: the
-    /// reference the GPU's f32 ray generation is compared against.
+    /// Pixel (x, y)'s ray (origin, normalized direction), computed in f64 from the f32 basis: the
+    /// reference the GPU's f32 ray generation is compared against, for either projection.
+    pub fn pixel_ray(&self, x: u32, y: u32) -> ([f64; 3], [f64; 3]) {
+        let v = |a: [f32; 3]| DVec3::new(a[0].into(), a[1].into(), a[2].into());
+        if !self.parallel {
+            return (v(self.origin).into(), self.dir(x, y));
+        }
+        let sx = 2.0 * (f64::from(x) + 0.5) / f64::from(self.width) - 1.0;
+        let sy = 1.0 - 2.0 * (f64::from(y) + 0.5) / f64::from(self.height);
+        let o = v(self.origin) + sx * v(self.right) + sy * v(self.up);
+        (o.into(), v(self.forward).normalize().into())
+    }
+
+    /// The normalized direction of pixel (x, y)'s ray of a perspective camera, computed in f64
+    /// from the f32 basis.
     pub fn dir(&self, x: u32, y: u32) -> [f64; 3] {
         let sx = 2.0 * (f64::from(x) + 0.5) / f64::from(self.width) - 1.0;
         let sy = 1.0 - 2.0 * (f64::from(y) + 0.5) / f64::from(self.height);
@@ -132,6 +163,7 @@ mod tests {
             focal_point: [0.0, 0.0, 0.0],
             view_up: [0.0, 0.0, 1.0],
             view_angle: 90.0,
+            parallel_scale: None,
         }
     }
 

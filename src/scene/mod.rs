@@ -2,12 +2,18 @@
 //! generators, and the flattened triangle model the BVH is built from.
 
 pub mod camera;
+pub mod color;
+pub mod data;
 pub mod generate;
+pub mod gltf;
 pub mod mesh;
 pub mod obj;
 pub mod ply;
+pub mod pvcc;
+pub mod stl;
 pub mod stream;
 mod strict;
+pub mod vtk;
 
 use crate::error::{Error, Result};
 pub use camera::{Camera, CameraBasis};
@@ -150,6 +156,39 @@ pub struct MeshSpec {
     #[serde(default, deserialize_with = "strict::opt_f64x3")]
     pub translate: Option<[f64; 3]>,
     pub scale: Option<f64>,
+    /// A data array of the file to colour by (ParaView's "Color By"; `dcrt info FILE` lists
+    /// them): point data, or cell data with `cell = true`.
+    pub color_by: Option<String>,
+    /// The colormap values are mapped through (default `cool-to-warm`).
+    pub colormap: Option<crate::colormap::Colormap>,
+    /// The values mapped onto the colormap's ends (default: the data range).
+    #[serde(default, deserialize_with = "strict::opt_range")]
+    pub range: Option<[f32; 2]>,
+    /// `color_by` names cell data.
+    pub cell: Option<bool>,
+}
+
+impl MeshSpec {
+    /// What the entry colours by, if anything.
+    pub fn color_by(&self) -> Option<color::ColorBy> {
+        Some(color::ColorBy {
+            array: self.color_by.clone()?,
+            cell: self.cell.unwrap_or(false),
+            colormap: self.colormap,
+            range: self.range,
+        })
+    }
+
+    /// The data arrays a loader must keep for this entry.
+    pub fn keep(&self) -> data::Keep {
+        match self.color_by() {
+            Some(by) => data::Keep::One {
+                assoc: by.assoc(),
+                name: by.array,
+            },
+            None => data::Keep::None,
+        }
+    }
 }
 
 /// A parsed and checked scene file.
@@ -180,7 +219,10 @@ impl Scene {
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
-        if matches!(ext.as_deref(), Some("ply" | "obj")) {
+        if matches!(
+            ext.as_deref(),
+            Some("ply" | "obj" | "stl" | "vtk" | "vtp" | "gltf" | "glb")
+        ) {
             return Err(Error::format(
                 path,
                 None,
@@ -300,6 +342,16 @@ impl Scene {
             {
                 return Err(at("translate must be finite"));
             }
+            match &m.color_by {
+                None if m.colormap.is_some() || m.range.is_some() || m.cell.is_some() => {
+                    return Err(at("`colormap`, `range` and `cell` go with `color_by`"));
+                }
+                Some(_) if m.generator.is_some() => {
+                    return Err(at("generated meshes have no data arrays to colour by"));
+                }
+                Some(name) if name.is_empty() => return Err(at("color_by: the name is empty")),
+                _ => {}
+            }
         }
         let shading = shading_of(file.render, &file.lights).map_err(bad)?;
         Ok(Scene {
@@ -334,18 +386,41 @@ impl Scene {
                 color: None,
                 translate: None,
                 scale: None,
+                color_by: None,
+                colormap: None,
+                range: None,
+                cell: None,
             }],
         }
     }
 
-    /// Loads every mesh and flattens them into one triangle list in primitive-id order.
+    /// Why the scene's meshes must be loaded whole (`load_model`) rather than streamed
+    /// (`stream`, geometry and one colour per mesh): a mesh coloured by data, or a glTF file,
+    /// whose parts bring colours of their own. `None` when streaming loses nothing.
+    pub fn needs_whole_meshes(&self) -> Option<String> {
+        self.meshes.iter().enumerate().find_map(|(i, spec)| {
+            if spec.color_by().is_some() {
+                return Some(format!("mesh {} is coloured by data", i + 1));
+            }
+            let file = spec.file.as_ref()?;
+            let ext = Path::new(file).extension()?.to_str()?.to_ascii_lowercase();
+            matches!(ext.as_str(), "gltf" | "glb")
+                .then(|| format!("mesh {} is a glTF file (its parts' colours)", i + 1))
+        })
+    }
+
+    /// Loads every mesh and flattens them into one triangle list in primitive-id order, with
+    /// the attributes of meshes coloured by data.
     pub fn load_model(&self) -> Result<Model> {
         let dir = self.mesh_dir()?;
         let mut model = Model::default();
+        // Per mesh: its mesh-table entries and, when coloured by data, its colouring.
+        let mut coloured = Vec::new();
         for spec in &self.meshes {
-            let (mesh, origin) = if let Some(file) = &spec.file {
+            let (mesh, data, origin) = if let Some(file) = &spec.file {
                 let path = dir.join(file);
-                (load_mesh_file(&path)?, path)
+                let (mesh, data) = load_mesh_data(&path, &spec.keep())?;
+                (mesh, data, path)
             } else {
                 let name = spec.generator.as_deref().unwrap_or_default();
                 let g = Generator::parse(name)
@@ -354,7 +429,8 @@ impl Scene {
                     spec.triangles.unwrap_or(DEFAULT_GENERATOR_TRIANGLES),
                     spec.seed.unwrap_or(1),
                 );
-                (mesh, PathBuf::from(format!("<generator {name}>")))
+                let origin = PathBuf::from(format!("<generator {name}>"));
+                (mesh, data::MeshData::default(), origin)
             };
             mesh.validate(&origin)?;
             if mesh.triangles.is_empty() {
@@ -364,7 +440,13 @@ impl Scene {
                     "the mesh has no triangles (no faces read)",
                 ));
             }
-            model.push(&mesh, spec, &origin)?;
+            let colours = match spec.color_by() {
+                Some(by) => Some(color::resolve(&mesh, &data, &by, &origin)?),
+                None => None,
+            };
+            let entries = model.colors.len();
+            model.push(&mesh, spec, &origin, &data.parts)?;
+            coloured.push((entries..model.colors.len(), colours));
         }
         if model.triangles.is_empty() {
             return Err(Error::format(
@@ -373,6 +455,7 @@ impl Scene {
                 "the scene has no triangles",
             ));
         }
+        model.colour(coloured);
         Ok(model)
     }
 
@@ -411,6 +494,7 @@ impl Scene {
                 focal_point: v.focal_point,
                 view_up: v.view_up,
                 view_angle: v.view_angle,
+                parallel_scale: None,
             };
         }
         fitted_camera(bounds)
@@ -478,44 +562,65 @@ fn read_input(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// The mesh file formats, by extension.
-enum MeshFormat {
-    Obj,
-    Ply,
+/// Loads a mesh file by its extension (`MESH_FORMATS`), geometry only.
+pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
+    load_mesh_data(path, &data::Keep::None).map(|(mesh, _)| mesh)
 }
 
-/// A regular file's mesh format, from its extension.
-fn mesh_format(path: &Path) -> Result<MeshFormat> {
+/// The mesh file extensions dcrt reads, as messages list them.
+pub const MESH_FORMATS: &str = ".obj, .ply, .stl, .vtk, .vtp, .gltf, .glb";
+
+/// Loads a mesh file by its extension, with the data arrays it offers and the values of those
+/// `keep` asks for.
+pub fn load_mesh_data(path: &Path, keep: &data::Keep) -> Result<(Mesh, data::MeshData)> {
     check_regular(path, "mesh")?;
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    let none = data::MeshData::default();
     match ext.as_deref() {
-        Some("obj") => Ok(MeshFormat::Obj),
-        Some("ply") => Ok(MeshFormat::Ply),
+        Some("obj") => Ok((obj::load_obj(path)?, none)),
+        Some("ply") => ply::load_ply_data(path, keep),
+        Some("stl") => Ok((stl::load_stl(path)?, none)),
+        Some("vtk") => vtk::legacy::load_vtk(path, keep),
+        Some("vtp") => vtk::xml::load_vtp(path, keep),
+        Some("gltf" | "glb") => gltf::load_gltf(path, keep),
         _ => Err(Error::format(
             path,
             None,
-            "unknown mesh format: the file name must end in .obj or .ply",
+            format!("unknown mesh format: the file name must end in one of {MESH_FORMATS}"),
         )),
     }
 }
 
-/// Loads an OBJ or PLY file by its extension.
-pub fn load_mesh_file(path: &Path) -> Result<Mesh> {
-    match mesh_format(path)? {
-        MeshFormat::Obj => obj::load_obj(path),
-        MeshFormat::Ply => ply::load_ply(path),
-    }
-}
-
-/// Reads an OBJ or PLY file in pieces (`obj::stream_obj`, `ply::stream_ply`), keeping at most
-/// `max_vertices` vertices.
+/// Reads a mesh file in pieces: OBJ and PLY as they are read (`obj::stream_obj`,
+/// `ply::stream_ply`), keeping at most `max_vertices` vertices; the other formats are read whole
+/// (their meshes are held, and refused above `max_vertices` vertices) and handed on at once.
+/// Geometry only.
 pub fn stream_mesh_file(path: &Path, max_vertices: u64, piece: &mut mesh::Piece) -> Result<()> {
-    match mesh_format(path)? {
-        MeshFormat::Obj => obj::stream_obj(path, max_vertices, piece),
-        MeshFormat::Ply => ply::stream_ply(path, max_vertices, piece),
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => obj::stream_obj(path, max_vertices, piece),
+        Some("ply") => ply::stream_ply(path, max_vertices, piece),
+        _ => {
+            let mesh = load_mesh_file(path)?;
+            if mesh.positions.len() as u64 > max_vertices {
+                return Err(Error::format(
+                    path,
+                    None,
+                    format!(
+                        "{} vertices: more than the {max_vertices} the memory budget holds \
+                         (this format is read whole); raise --memory",
+                        mesh.positions.len()
+                    ),
+                ));
+            }
+            piece(&mesh.positions, &mesh.triangles)
+        }
     }
 }
 
@@ -599,17 +704,75 @@ impl Placement {
 }
 
 /// All triangles of a scene, unshared, in primitive-id order (meshes in scene order, faces in file
-/// order), with each mesh's first primitive id and colour.
+/// order), with the mesh table (each entry's first primitive id, colour and look: a mesh, or a
+/// part of a file with its own colour) and, when a mesh is coloured by data, every triangle's
+/// attribute words.
 #[derive(Clone, Debug, Default)]
 pub struct Model {
     pub triangles: Vec<[[f32; 3]; 3]>,
     pub mesh_first: Vec<u32>,
     pub colors: Vec<[f32; 3]>,
+    /// One per mesh-table entry; empty means all constant.
+    pub looks: Vec<color::Look>,
+    pub attributes: Option<color::Attributes>,
     pub bounds: Bounds,
 }
 
 impl Model {
-    fn push(&mut self, mesh: &Mesh, spec: &MeshSpec, origin: &Path) -> Result<()> {
+    /// Sets the looks and attributes from each mesh's colouring (its mesh-table entries and
+    /// colouring, mesh by mesh): ranges settled, three words per triangle when any mesh uses
+    /// point data, else one; no attributes when no mesh is coloured by data.
+    fn colour(&mut self, meshes: Vec<(std::ops::Range<usize>, Option<color::MeshColors>)>) {
+        self.looks = vec![color::Look::Constant; self.colors.len()];
+        if meshes.iter().all(|(_, c)| c.is_none()) {
+            return;
+        }
+        let mut pending: Vec<(color::Look, Option<(f32, f32)>)> = meshes
+            .iter()
+            .map(|(_, c)| match c {
+                Some(c) => (c.look.clone(), c.data_range),
+                None => (color::Look::Constant, None),
+            })
+            .collect();
+        color::settle_ranges(&mut pending);
+        let words = if pending.iter().any(|(l, _)| l.per_corner()) {
+            3
+        } else {
+            1
+        };
+        let mut data = Vec::with_capacity(self.triangles.len() * words);
+        for ((entries, colours), (look, _)) in meshes.into_iter().zip(pending) {
+            for l in &mut self.looks[entries.clone()] {
+                *l = look.clone();
+            }
+            match colours {
+                Some(c) => c
+                    .words
+                    .iter()
+                    .for_each(|w| data.extend_from_slice(&w[..words])),
+                None => {
+                    let first = self.mesh_first[entries.start] as usize;
+                    let end = self
+                        .mesh_first
+                        .get(entries.end)
+                        .map_or(self.triangles.len(), |&f| f as usize);
+                    data.resize(data.len() + (end - first) * words, 0);
+                }
+            }
+        }
+        self.attributes = Some(color::Attributes {
+            words: words as u32,
+            data,
+        });
+    }
+
+    fn push(
+        &mut self,
+        mesh: &Mesh,
+        spec: &MeshSpec,
+        origin: &Path,
+        parts: &[data::Part],
+    ) -> Result<()> {
         let total = self.triangles.len() as u64 + mesh.triangles.len() as u64;
         if total >= u64::from(u32::MAX) {
             return Err(Error::format(
@@ -619,8 +782,21 @@ impl Model {
             ));
         }
         let place = Placement::of(spec);
-        self.mesh_first.push(self.triangles.len() as u32);
-        self.colors.push(spec.color.unwrap_or(DEFAULT_COLOR));
+        // The file's parts (with their own colours) are entries of their own unless the scene
+        // gives the mesh a colour.
+        let first = self.triangles.len() as u32;
+        match (spec.color, parts) {
+            (None, [p0, ..]) if p0.first == 0 => {
+                for p in parts {
+                    self.mesh_first.push(first + p.first);
+                    self.colors.push(p.color);
+                }
+            }
+            _ => {
+                self.mesh_first.push(first);
+                self.colors.push(spec.color.unwrap_or(DEFAULT_COLOR));
+            }
+        }
         self.triangles.reserve(mesh.triangles.len());
         for i in 0..mesh.triangles.len() {
             let tri = place.triangle(mesh.corners(i), origin, i as u64)?;
@@ -646,6 +822,7 @@ impl Model {
             mesh_first: vec![0],
             colors: vec![DEFAULT_COLOR],
             bounds,
+            ..Model::default()
         }
     }
 }
@@ -668,6 +845,7 @@ pub fn fitted_camera(b: Bounds) -> Camera {
         focal_point: c,
         view_up: [0.0, 0.0, 1.0],
         view_angle,
+        parallel_scale: None,
     }
 }
 

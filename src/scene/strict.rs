@@ -33,3 +33,22 @@ pub fn opt_f64x3<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D:
 pub fn opt_f32x3<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f32; 3]>, D::Error> {
     in_f32(three(d)?).map(Some)
 }
+
+/// `range = [a, b]`: two numbers, finite as 32-bit floats, `a < b`.
+pub fn opt_range<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f32; 2]>, D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    let [a, b] = <[f64; 2]>::try_from(v.as_slice())
+        .map_err(|_| D::Error::custom(format!("expected 2 numbers, got {}", v.len())))?;
+    let (fa, fb) = (a as f32, b as f32);
+    if !(fa.is_finite() && fb.is_finite()) {
+        return Err(D::Error::custom(format!(
+            "[{a}, {b}] is not finite as 32-bit floats"
+        )));
+    }
+    if fa >= fb {
+        return Err(D::Error::custom(format!(
+            "[{a}, {b}] is empty: the first value must be below the second"
+        )));
+    }
+    Ok(Some([fa, fb]))
+}

@@ -58,10 +58,15 @@ fn missing_and_unreadable_files() {
     fails(&d, &s, &[], &["gone.ply", "No such file"]);
     let s = d.write(
         "scene2.toml",
-        format!("{CAMERA}[[mesh]]\nfile = \"x.stl\"\n"),
+        format!("{CAMERA}[[mesh]]\nfile = \"x.xyz\"\n"),
     );
-    d.write("x.stl", "solid");
-    fails(&d, &s, &[], &["x.stl", "unknown mesh format"]);
+    d.write("x.xyz", "solid");
+    fails(
+        &d,
+        &s,
+        &[],
+        &["x.xyz", "unknown mesh format", ".vtp, .gltf, .glb"],
+    );
 }
 
 #[test]
@@ -309,6 +314,31 @@ fn messages_say_their_cause_once() {
     let r = dcrt(&[&"render", &d.path("nope.toml"), &"-o", &d.path("o.png")]);
     let err = String::from_utf8_lossy(&r.stderr);
     assert_eq!(err.matches("No such file").count(), 1, "{err}");
+    // The same through every loader and command: a missing mesh, a glTF's missing buffer file,
+    // `prepare`, `info FILE`.
+    d.write(
+        "b.gltf",
+        gltf(&|j| j["buffers"][0]["uri"] = "gone.bin".into()),
+    );
+    for mesh in ["gone.vtp", "gone.stl", "b.gltf"] {
+        let s = d.write("m.toml", format!("{CAMERA}[[mesh]]\nfile = \"{mesh}\"\n"));
+        for (cmd, out) in [("render", "o.png"), ("prepare", "o.dcb")] {
+            let out = d.path(out);
+            let r = dcrt(&[&cmd, &s, &"-o", &out]);
+            let err = String::from_utf8_lossy(&r.stderr);
+            assert_eq!(
+                err.matches("No such file").count(),
+                1,
+                "{cmd} {mesh}: {err}"
+            );
+            let named = if mesh == "b.gltf" { "gone.bin" } else { mesh };
+            assert!(err.contains(named), "{err}");
+        }
+    }
+    let r = dcrt(&[&"info", &d.path("gone.vtk")]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.matches("No such file").count(), 1, "{err}");
+    assert!(err.contains("gone.vtk"), "{err}");
     let s = d.write(
         "u.toml",
         b"[camera]\nposition = [0, 0, 1]\n# \xff\n".as_slice(),
@@ -340,4 +370,298 @@ fn messages_say_their_cause_once() {
         &["--virtual-ranks", "2", "--rank", "2"],
         &["--rank 2 is out of range"],
     );
+}
+
+/// A small legacy VTK file: two triangles, point array "p", cell array "c".
+const VTK: &str = "# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\nPOINTS 4 float\n\
+                   0 0 0 1 0 0 1 1 0 0 1 0\nPOLYGONS 2 8\n3 0 1 2\n3 0 2 3\n\
+                   POINT_DATA 4\nSCALARS p float\nLOOKUP_TABLE default\n0 1 2 3\n\
+                   CELL_DATA 2\nSCALARS c int\nLOOKUP_TABLE default\n5 6\n";
+
+/// A small XML PolyData file: the same two triangles and arrays.
+const VTP: &str = r#"<?xml version="1.0"?>
+<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
+<PolyData><Piece NumberOfPoints="4" NumberOfPolys="2">
+<PointData><DataArray type="Float32" Name="p" format="ascii">0 1 2 3</DataArray></PointData>
+<CellData><DataArray type="Int32" Name="c" format="ascii">5 6</DataArray></CellData>
+<Points><DataArray type="Float32" NumberOfComponents="3" format="ascii">0 0 0 1 0 0 1 1 0 0 1 0</DataArray></Points>
+<Polys><DataArray type="Int32" Name="connectivity" format="ascii">0 1 2 0 2 3</DataArray>
+<DataArray type="Int32" Name="offsets" format="ascii">3 6</DataArray></Polys>
+</Piece></PolyData></VTKFile>
+"#;
+
+/// A binary STL of two triangles.
+fn stl(nan: bool) -> Vec<u8> {
+    let mut b = vec![0u8; 80];
+    b.extend_from_slice(&2u32.to_le_bytes());
+    for t in [
+        [0.0f32, 0., 0., 1., 0., 0., 1., 1., 0.],
+        [0., 0., 0., 1., 1., 0., 0., 1., 0.],
+    ] {
+        b.extend_from_slice(&[0u8; 12]);
+        for (k, v) in t.iter().enumerate() {
+            let v = if nan && k == 4 { f32::NAN } else { *v };
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b.extend_from_slice(&[0u8; 2]);
+    }
+    b
+}
+
+/// A glTF file of the same two triangles, buffer inlined, with a `_P` attribute.
+fn gltf(edit: &dyn Fn(&mut serde_json::Value)) -> Vec<u8> {
+    use base64::Engine;
+    let mut bin = Vec::new();
+    for v in [
+        0.0f32, 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0., 0., 1., 2., 3.,
+    ] {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    for i in [0u16, 1, 2, 0, 2, 3] {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    );
+    let mut j = serde_json::json!({
+        "asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "_P": 1}, "indices": 2}]}],
+        "buffers": [{"byteLength": bin.len(), "uri": uri}],
+        "bufferViews": [{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 16},
+                        {"buffer": 0, "byteOffset": 64, "byteLength": 12}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "SCALAR"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}]
+    });
+    edit(&mut j);
+    serde_json::to_vec(&j).unwrap()
+}
+
+/// Every new loader, through the command line: truncated, garbage, wrong counts, out-of-range
+/// indices, non-finite coordinates, arrays of the wrong length and mismatched types each give an
+/// error naming the file and the element or line, exit 1 and no output.
+#[test]
+fn broken_stl_vtk_vtp_gltf_files() {
+    let d = TempDir::new("broken-formats");
+    let cases: Vec<(&str, Vec<u8>, Vec<&str>)> = vec![
+        // STL
+        (
+            "trunc.stl",
+            stl(false)[..150].to_vec(),
+            vec!["declares 2 triangles (184 bytes) where the file has 150"],
+        ),
+        (
+            "junk.stl",
+            b"\x00\xff garbage".to_vec(),
+            vec!["not an STL file"],
+        ),
+        ("nan.stl", stl(true), vec!["triangle 0", "not finite"]),
+        (
+            "count.stl",
+            b"solid a\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\n"
+                .to_vec(),
+            vec!["line 6", "a facet has 2 vertices"],
+        ),
+        // legacy VTK
+        (
+            "trunc.vtk",
+            VTK.as_bytes()[..VTK.find("3 0 2 3").unwrap()].to_vec(),
+            vec!["POLYGONS: integer 4 of 8", "file ends after 4 of 8 values"],
+        ),
+        (
+            "junk.vtk",
+            b"\x00\xff garbage\n".to_vec(),
+            vec!["line 1", "not a legacy VTK file"],
+        ),
+        (
+            "count.vtk",
+            VTK.replace("POLYGONS 2 8", "POLYGONS 3 8").into_bytes(),
+            vec!["holds 2 whole cells, the header says 3"],
+        ),
+        (
+            "range.vtk",
+            VTK.replace("3 0 2 3", "3 0 2 7").into_bytes(),
+            vec!["POLYGONS: cell 1", "point index 7 out of range (4 points)"],
+        ),
+        (
+            "nan.vtk",
+            VTK.replace("1 1 0 0 1 0", "1 nan 0 0 1 0").into_bytes(),
+            vec!["POINTS: point 2 (line 6)", "not finite"],
+        ),
+        (
+            "length.vtk",
+            VTK.replace("0 1 2 3\nCELL", "0 1 2\nCELL").into_bytes(),
+            vec!["point 'p'", "expected a float32 value, found 'CELL_DATA'"],
+        ),
+        (
+            "type.vtk",
+            VTK.replace("5 6\n", "5 6.5\n").into_bytes(),
+            vec!["cell 'c': cell 1", "expected a int32 value, found '6.5'"],
+        ),
+        // XML PolyData
+        (
+            "trunc.vtp",
+            VTP.as_bytes()[..200].to_vec(),
+            vec!["not well-formed XML"],
+        ),
+        ("junk.vtp", b"\x00\xff garbage".to_vec(), vec!["line 1"]),
+        (
+            "count.vtp",
+            VTP.replace("NumberOfPolys=\"2\"", "NumberOfPolys=\"3\"")
+                .into_bytes(),
+            vec!["Piece 0: Polys offsets", "2 values where 3 tuples"],
+        ),
+        (
+            "range.vtp",
+            VTP.replace("0 1 2 0 2 3", "0 1 2 0 2 9").into_bytes(),
+            vec!["Polys cell 1", "point index 9 out of range"],
+        ),
+        (
+            "nan.vtp",
+            VTP.replace("1 1 0 0 1 0", "1 nan 0 0 1 0").into_bytes(),
+            vec!["Piece 0: Points", "point 2: coordinate is not finite"],
+        ),
+        (
+            "length.vtp",
+            VTP.replace(">0 1 2 3<", ">0 1 2<").into_bytes(),
+            vec!["point array 'p'", "3 values where 4 tuples of 1 need 4"],
+        ),
+        (
+            "type.vtp",
+            VTP.replace("type=\"Int32\" Name=\"c\"", "type=\"Float16\" Name=\"c\"")
+                .into_bytes(),
+            vec!["cell array 'c'", "unsupported type 'Float16'"],
+        ),
+        // glTF
+        (
+            "trunc.gltf",
+            gltf(&|_| {})[..300].to_vec(),
+            vec!["not a glTF 2.0 file"],
+        ),
+        (
+            "junk.glb",
+            b"glTF\x02\x00\x00\x00\xff\xff".to_vec(),
+            vec!["not a glTF 2.0 file"],
+        ),
+        (
+            "count.gltf",
+            gltf(&|j| j["accessors"][0]["count"] = 9.into()),
+            vec![
+                "mesh 0 primitive 0",
+                "POSITION: accessor 0: 9 elements from byte 0 run past its buffer view (48 bytes)",
+            ],
+        ),
+        (
+            "range.gltf",
+            gltf(&|j| j["accessors"][2]["count"] = 5.into()),
+            vec!["mesh 0 primitive 0", "5 indices are not whole triangles"],
+        ),
+        (
+            "nan.gltf",
+            gltf(&|j| j["nodes"][0]["scale"] = serde_json::json!([4e38, 1, 1])),
+            vec!["mesh 0 primitive 0 (node 0)", "not finite"],
+        ),
+        (
+            "length.gltf",
+            gltf(&|j| j["accessors"][1]["count"] = 3.into()),
+            vec!["mesh 0 primitive 0", "_P has 3 values for 4 vertices"],
+        ),
+        (
+            "type.gltf",
+            gltf(&|j| j["accessors"][2]["componentType"] = 5126.into()),
+            vec!["mesh 0 primitive 0", "indices must be unsigned integers"],
+        ),
+    ];
+    for (name, bytes, needles) in cases {
+        d.write(name, &bytes);
+        // Coloured by the point array, so that arrays are read and checked.
+        let by = if name.ends_with("gltf") { "_P" } else { "p" };
+        let colour =
+            if name.ends_with("stl") || name.starts_with("junk") || name.starts_with("trunc") {
+                String::new()
+            } else {
+                format!("color_by = \"{by}\"\n")
+            };
+        let s = d.write(
+            "s.toml",
+            format!("{CAMERA}[[mesh]]\nfile = \"{name}\"\n{colour}"),
+        );
+        eprintln!("case {name}");
+        let mut all = vec![name];
+        all.extend(needles);
+        fails(&d, &s, &[], &all);
+    }
+}
+
+/// Colouring mistakes: an unknown array (the message lists the ones there are), cell data asked
+/// as point data and back, a colour array given a colormap, an unknown colormap, a bad range, the
+/// keys without `color_by`, a generator, non-finite values.
+#[test]
+fn colour_by_mistakes() {
+    let d = TempDir::new("color-mistakes");
+    d.write("m.vtk", VTK);
+    d.write("n.vtk", VTK.replace("0 1 2 3\nCELL", "0 nan 2 3\nCELL"));
+    d.write(
+        "rgb.vtk",
+        VTK.replace(
+            "SCALARS c int\nLOOKUP_TABLE default\n5 6",
+            "COLOR_SCALARS c 3\n1 0 0 0 1 0",
+        ),
+    );
+    let cases: Vec<(&str, Vec<&str>)> = vec![
+        (
+            "file = \"m.vtk\"\ncolor_by = \"pressure\"",
+            vec![
+                "m.vtk",
+                "color_by 'pressure': no point array of that name; point arrays: p; cell arrays: c",
+            ],
+        ),
+        (
+            "file = \"m.vtk\"\ncolor_by = \"c\"",
+            vec!["m.vtk", "'c' is cell data: add cell = true"],
+        ),
+        (
+            "file = \"m.vtk\"\ncolor_by = \"p\"\ncell = true",
+            vec!["m.vtk", "'p' is point data: remove cell = true"],
+        ),
+        (
+            "file = \"rgb.vtk\"\ncolor_by = \"c\"\ncell = true\ncolormap = \"viridis\"",
+            vec!["rgb.vtk", "the array holds colours"],
+        ),
+        (
+            "file = \"m.vtk\"\ncolor_by = \"p\"\ncolormap = \"jet\"",
+            vec![
+                "s.toml",
+                "unknown variant `jet`",
+                "cool-to-warm",
+                "rainbow-uniform",
+            ],
+        ),
+        (
+            "file = \"m.vtk\"\ncolor_by = \"p\"\nrange = [2, 1]",
+            vec!["s.toml", "[2, 1] is empty"],
+        ),
+        (
+            "file = \"m.vtk\"\ncolor_by = \"p\"\nrange = [0, 1, 2]",
+            vec!["s.toml", "expected 2 numbers, got 3"],
+        ),
+        (
+            "file = \"m.vtk\"\ncolormap = \"viridis\"",
+            vec!["s.toml", "mesh 1", "go with `color_by`"],
+        ),
+        (
+            "generator = \"rm\"\ncolor_by = \"p\"",
+            vec!["s.toml", "generated meshes have no data arrays"],
+        ),
+        (
+            "file = \"n.vtk\"\ncolor_by = \"p\"",
+            vec!["n.vtk", "array 'p': point 1 is NaN"],
+        ),
+    ];
+    for (mesh, needles) in cases {
+        let s = d.write("s.toml", format!("{CAMERA}[[mesh]]\n{mesh}\n"));
+        fails(&d, &s, &[], &needles);
+    }
 }

@@ -171,3 +171,123 @@ fn long_renders_say_how_far_they_are() {
         "{err}"
     );
 }
+
+/// A headless run (no Wayland display: `XDG_RUNTIME_DIR` unset) prints nothing from the window
+/// systems that Mesa's device-select layer probes: only dcrt's own lines.
+#[test]
+fn headless_runs_are_quiet() {
+    let d = TempDir::new("cli-quiet");
+    let scene = d.write("s.toml", SCENE);
+    let out = d.path("o.png");
+    for args in [
+        vec![
+            "render".as_ref(),
+            scene.as_os_str(),
+            "-o".as_ref(),
+            out.as_os_str(),
+            "--width".as_ref(),
+            "16".as_ref(),
+            "--height".as_ref(),
+            "16".as_ref(),
+        ],
+        vec!["info".as_ref()],
+    ] {
+        let r = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"))
+            .args(&args)
+            .env_remove("XDG_RUNTIME_DIR")
+            .env_remove("WAYLAND_DISPLAY")
+            .env_remove("WAYLAND_SOCKET")
+            .env_remove("NODEVICE_SELECT")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.success(), "{err}");
+        assert!(!err.contains("XDG_RUNTIME_DIR"), "{args:?}: {err}");
+        for line in err.lines() {
+            assert!(
+                ["adapter:", "replicated:", "frame 0:"]
+                    .iter()
+                    .any(|p| line.starts_with(p)),
+                "{args:?}: unexpected line on stderr: {line}"
+            );
+        }
+    }
+}
+
+/// `--camera FILE.pvcc` renders with ParaView's saved camera: the image is the one of a scene
+/// giving the same camera; a parallel projection changes it; a broken camera file is an error
+/// naming the file and property, before any output.
+#[test]
+fn paraview_camera_files() {
+    let d = TempDir::new("cli-pvcc");
+    let body = "[image]\nwidth = 48\nheight = 40\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 8000\n";
+    let pvcc = |parallel: u8| {
+        format!(
+            r#"<?xml version="1.0"?>
+<PVCameraConfiguration description="ParaView camera configuration" version="1.0">
+  <Proxy group="views" type="RenderView" id="1" servers="21">
+    <Property name="CameraPosition" id="1.CameraPosition" number_of_elements="3">
+      <Element index="0" value="0.25"/><Element index="1" value="-2.2"/><Element index="2" value="1.8"/>
+    </Property>
+    <Property name="CameraFocalPoint" id="1.CameraFocalPoint" number_of_elements="3">
+      <Element index="0" value="0"/><Element index="1" value="0"/><Element index="2" value="0"/>
+    </Property>
+    <Property name="CameraViewUp" id="1.CameraViewUp" number_of_elements="3">
+      <Element index="0" value="0"/><Element index="1" value="0"/><Element index="2" value="1"/>
+    </Property>
+    <Property name="CameraViewAngle" id="1.CameraViewAngle" number_of_elements="1">
+      <Element index="0" value="35"/>
+    </Property>
+    <Property name="CameraParallelScale" id="1.CameraParallelScale" number_of_elements="1">
+      <Element index="0" value="0.8"/>
+    </Property>
+    <Property name="CameraParallelProjection" id="1.CameraParallelProjection" number_of_elements="1">
+      <Element index="0" value="{parallel}"/>
+    </Property>
+  </Proxy>
+</PVCameraConfiguration>
+"#
+        )
+    };
+    let plain = d.write("plain.toml", body);
+    let with_camera = d.write(
+        "cam.toml",
+        format!(
+            "[camera]\nposition = [0.25, -2.2, 1.8]\nfocal_point = [0, 0, 0]\n\
+             view_up = [0, 0, 1]\nview_angle = 35\n{body}"
+        ),
+    );
+    let (a, b, c) = (d.path("a.png"), d.path("b.png"), d.path("c.png"));
+    ok(&[
+        &"render",
+        &plain,
+        &"-o",
+        &a,
+        &"--camera",
+        &d.write("v.pvcc", pvcc(0)),
+    ]);
+    ok(&[&"render", &with_camera, &"-o", &b]);
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    ok(&[
+        &"render",
+        &plain,
+        &"-o",
+        &c,
+        &"--camera",
+        &d.write("p.pvcc", pvcc(1)),
+    ]);
+    assert_ne!(std::fs::read(&a).unwrap(), std::fs::read(&c).unwrap());
+    let bad = d.write(
+        "bad.pvcc",
+        pvcc(0).replace("value=\"35\"", "value=\"wide\""),
+    );
+    let out = d.path("bad.png");
+    let r = dcrt(&[&"render", &plain, &"-o", &out, &"--camera", &bad]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success(), "{err}");
+    assert!(
+        err.contains("bad.pvcc") && err.contains("CameraViewAngle") && err.contains("'wide'"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

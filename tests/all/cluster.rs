@@ -668,3 +668,64 @@ fn sigterm_to_mpirun_ends_every_rank_and_leaves_no_outputs() {
         .collect();
     assert!(alive.is_empty(), "ranks still running: {alive:?}");
 }
+
+/// A model coloured by data (the shipped isosurface by its pressure, a part by cell data) with
+/// the colour legend: K ranks with a distributed cache give the one-process PNG, over shared
+/// memory and TCP, the render ranks fetching attribute blocks from each other over MPI; and
+/// the display, which loads no model, draws the same legend from the block file.
+#[test]
+fn coloured_model_with_legend_under_mpirun_matches_one_process() {
+    let dir = TempDir::new("cl-colour");
+    let meshes = repo().join("scenes/meshes");
+    let scene = dir.write(
+        "iso.toml",
+        format!(
+            "[image]\nwidth = {W}\nheight = {H}\n\
+             [[mesh]]\nfile = \"{0}/isosurface.vtp\"\ncolor_by = \"pressure\"\n\
+             [[mesh]]\nfile = \"{0}/bracket.vtk\"\ncolor_by = \"region\"\ncell = true\n\
+             colormap = \"viridis\"\nscale = 4\ntranslate = [0, -20, 0]\n",
+            meshes.display()
+        ),
+    );
+    let dcb = dir.path("iso.dcb");
+    let out = dcrt(&[&"prepare", &scene, &"-o", &dcb]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let f = dcrt::blocks::file::DcbFile::open(&dcb).unwrap();
+    let attr0 = u64::from(f.node_blocks + f.tri_blocks);
+    assert!(f.meta.attrs.blocks > 0);
+    let single = dir.path("single.png");
+    let out = dcrt(&[&"render", &dcb, &"-o", &single, &"--legend"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let a = image::open(&single).unwrap().to_rgb8();
+    for (k, mca) in [(4, SHARED), (5, TCP_PT2PT)] {
+        let png = dir.path(&format!("k{k}.png"));
+        let traces = dir.path(&format!("k{k}-traces"));
+        let args = [
+            "render",
+            dcb.to_str().unwrap(),
+            "-o",
+            png.to_str().unwrap(),
+            "--legend",
+            "--cache",
+            "1/8",
+            "--tile",
+            "16",
+            "--min-tile",
+            "8",
+            "--trace",
+            traces.to_str().unwrap(),
+        ];
+        let out = mpirun(k, mca, &args, &[], 120).out;
+        assert!(out.status.success(), "k={k}: {}", stderr(&out));
+        let b = image::open(&png).unwrap().to_rgb8();
+        assert!(a == b, "k={k} {mca:?}: the PNG differs from one process's");
+        // Attribute blocks travelled between render ranks.
+        let attr: u64 = (2..k)
+            .flat_map(|r| records(&traces, 0, r))
+            .filter(|e| e["type"] == "round")
+            .flat_map(|e| e["faults"].as_array().cloned().unwrap_or_default())
+            .filter(|f| f["served"] == true && f["block"].as_u64().unwrap() >= attr0)
+            .count() as u64;
+        assert!(attr > 0, "k={k}: no attribute block was fetched over MPI");
+    }
+}

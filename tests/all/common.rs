@@ -43,10 +43,13 @@ pub fn reference(model: &Model, camera: &Camera, w: u32, h: u32) -> Vec<Option<H
     let basis = camera.basis(w, h);
     let rays: Vec<Ray> = (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| Ray {
-            origin: basis.origin,
-            dir: basis.dir(x, y).map(|c| c as f32),
-            tmax: f32::INFINITY,
+        .map(|(x, y)| {
+            let (o, d) = basis.pixel_ray(x, y);
+            Ray {
+                origin: o.map(|c| c as f32),
+                dir: d.map(|c| c as f32),
+                tmax: f32::INFINITY,
+            }
         })
         .collect();
     Reference::new(&model.triangles).closest_hits(&rays)

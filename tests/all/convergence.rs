@@ -217,6 +217,7 @@ fn sphere_cavity_matches_its_geometric_series() {
         focal_point: [0.0, 0.0, 0.0],
         view_up: [0.0, 1.0, 0.0],
         view_angle: 12.0,
+        parallel_scale: None,
     };
     let (w, h, depth) = (16, 16, 4);
     let r = a * (1.0 - f);

@@ -96,6 +96,31 @@ fn assembly_interior_matches_the_reference() {
         focal_point: [1.0, 0.0, 0.0],
         view_up: [0.0, 0.0, 1.0],
         view_angle: 70.0,
+        parallel_scale: None,
     };
     check("assembly inside", m, camera);
+}
+
+#[test]
+fn parallel_projection_matches_the_reference() {
+    // ParaView's parallel projection (a .pvcc with CameraParallelProjection 1): rays along the
+    // view from the image plane. The depth is measured from that plane.
+    let scene = scene("bumpy.toml");
+    let model = scene.load_model().unwrap();
+    let camera = Camera {
+        parallel_scale: Some(1.6),
+        ..scene.camera_or_default(&model)
+    };
+    check("bumpy parallel", model, camera);
+}
+
+#[test]
+fn visualization_examples_match_the_reference() {
+    // The shipped STL, legacy VTK, glTF and VTK XML examples, through their scenes.
+    for name in ["formats.toml", "isosurface.toml"] {
+        let scene = scene(name);
+        let model = scene.load_model().unwrap();
+        let camera = scene.camera_or_default(&model);
+        check(name, model, camera);
+    }
 }

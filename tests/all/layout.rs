@@ -4,6 +4,7 @@
 //! kernels, and compares it word by word.
 
 use crate::common::*;
+use dcrt::colormap::Colormap;
 use dcrt::gpu::layout::{
     Counter, FaultHeader, Light, MeshInfo, MirrorCase, MirrorResult, Params, Path, Pixel, RayState,
     ShadeParams, Stats,
@@ -11,6 +12,7 @@ use dcrt::gpu::layout::{
 use dcrt::gpu::shaders::wgsl_struct;
 use dcrt::gpu::tracer::Settings;
 use dcrt::scene::Model;
+use dcrt::scene::color::Look;
 use std::mem::{offset_of, size_of};
 
 fn words<T: bytemuck::Pod>(v: &T) -> Vec<u32> {
@@ -30,6 +32,20 @@ fn every_member_reads_back_through_the_shader() {
     let mut model = Model::from_triangles(tris);
     model.mesh_first = vec![0, 1000, 2500];
     model.colors = vec![[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9]];
+    // Every look, so that each MeshInfo member holds something.
+    model.looks = vec![
+        Look::Constant,
+        Look::Scalars {
+            array: "p".into(),
+            colormap: Colormap::Viridis,
+            range: [-2.5, 7.5],
+            cell: false,
+        },
+        Look::Colors {
+            array: "rgb".into(),
+            cell: true,
+        },
+    ];
     let prepared = prepare(model);
     let mut tracer = prepared.tracer(&gpu, Settings::default()).unwrap();
     let nodes = prepared.bvh.nodes.len() as u32;
@@ -72,6 +88,10 @@ fn every_member_reads_back_through_the_shader() {
         dc_fault_cap: 122,
         pad2: 123,
         opaque_zero: 124,
+        attr_block0: 125,
+        albedo_stride: 126,
+        pad4: 127,
+        pad5: 128,
         ..base
     };
     let g = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.25) };
@@ -113,7 +133,9 @@ fn every_member_reads_back_through_the_shader() {
             flags: 20,
             hit_point: [21.5, 22.5, 23.5],
             hit_error: 24.5,
-            skip: 25,
+            b1: 25.5,
+            b2: 26.5,
+            skip: 27,
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -131,6 +153,8 @@ fn every_member_reads_back_through_the_shader() {
             flags: 86,
             hit_point: [-87.0, 88.0, -89.0],
             hit_error: 1e-7,
+            b1: 0.25,
+            b2: 0.5,
             skip: u32::MAX,
         },
     ];
@@ -148,12 +172,8 @@ fn every_member_reads_back_through_the_shader() {
     for r in &rays {
         expect.extend(words(r));
     }
-    for (c, &first) in prepared.model.colors.iter().zip(&prepared.model.mesh_first) {
-        expect.extend(words(&MeshInfo {
-            color: [c[0], c[1], c[2], 1.0],
-            first_prim: first,
-            pad: [0; 3],
-        }));
+    for m in prepared.meshes().infos() {
+        expect.extend(words(&m));
     }
     expect.extend(words(&shading));
     assert_eq!(out.len(), expect.len());
@@ -198,7 +218,8 @@ fn host_structs_match_naga_layouts() {
         "dc_root_row" => dc_root_row, "dc_fault_cap" => dc_fault_cap, "rect_x" => rect_x,
         "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
         "pad1" => pad1, "pad2" => pad2, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
-        "flags" => flags, "spp" => spp,
+        "flags" => flags, "spp" => spp, "attr_block0" => attr_block0,
+        "albedo_stride" => albedo_stride, "pad4" => pad4, "pad5" => pad5,
     });
     sized(w, size_of::<Params>());
     let w = same_layout!(RayState, "RayState", {
@@ -208,12 +229,12 @@ fn host_structs_match_naga_layouts() {
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
         "hx" => hit_point, "hy" => hit_point + 4, "hz" => hit_point + 8, "herr" => hit_error,
-        "skip" => skip,
+        "b1" => b1, "b2" => b2, "skip" => skip,
     });
     sized(w, size_of::<RayState>());
     let w = same_layout!(MeshInfo, "MeshInfo", {
-        "color" => color, "first_prim" => first_prim, "pad0" => pad, "pad1" => pad + 4,
-        "pad2" => pad + 8,
+        "color" => color, "first_prim" => first_prim, "look" => look, "point" => point,
+        "map" => map, "lo" => lo, "scale" => scale, "pad0" => pad, "pad1" => pad + 4,
     });
     sized(w, size_of::<MeshInfo>());
     let w = same_layout!(Pixel, "Pixel", {
@@ -255,12 +276,12 @@ fn host_structs_match_naga_layouts() {
     });
     sized(w, size_of::<Path>());
     let w = same_layout!(MirrorCase, "MirrorCase", {
-        "p" => p, "n" => n, "u" => u, "words" => words, "node" => node,
+        "p" => p, "n" => n, "u" => u, "words" => words, "node" => node, "c" => c,
     });
     sized(w, size_of::<MirrorCase>());
     let w = same_layout!(MirrorResult, "MirrorResult", {
         "offset" => offset, "dir" => dir, "sample" => sample, "words" => words, "lo" => lo,
-        "hi" => hi,
+        "hi" => hi, "color" => color, "rgb" => rgb,
     });
     sized(w, size_of::<MirrorResult>());
 }

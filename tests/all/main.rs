@@ -4,6 +4,7 @@
 mod bad_input;
 mod cli;
 mod cluster;
+mod color;
 mod common;
 mod convergence;
 mod dc;

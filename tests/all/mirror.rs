@@ -6,6 +6,7 @@ use dcrt::bvh::Node;
 use dcrt::dc::{CacheMap, Ranks, cache_line};
 use dcrt::gpu::layout::{MirrorCase, Params, flags};
 use dcrt::gpu::probe::run_mirror;
+use dcrt::mirror::colormap::{bin, colormap, srgb_color};
 use dcrt::mirror::offset::offset_ray_with;
 use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
 use dcrt::mirror::tiles::tile_pixel;
@@ -65,6 +66,7 @@ fn cases(n: usize) -> Vec<MirrorCase> {
                     m.next() as u32,
                 ],
                 node: [0; 16],
+                c: [0.0; 4],
             }
         })
         .collect()
@@ -269,6 +271,59 @@ fn cosine_dir_on_the_gpu_has_the_cosine_moments() {
         cos.iter().all(|&c| c >= -1e-6),
         "a direction below the surface"
     );
+}
+
+/// Scalars map to the same colormap bin on the GPU as on the CPU, bit for bit: values at and
+/// beside every bin boundary of ranges from tiny to huge, outside the range, infinite and NaN;
+/// and packed sRGB colours decode alike.
+#[test]
+fn colormap_matches_the_gpu_bit_for_bit() {
+    let gpu = gpu();
+    let mut m = Rng(11);
+    let mut cases = cases(6144);
+    for (i, c) in cases.iter_mut().enumerate() {
+        let lo = match i % 4 {
+            0 => 0.0,
+            1 => -1e5 * m.unit(),
+            2 => 101325.0,
+            _ => m.coord(),
+        };
+        let width = 10f32.powf(12.0 * m.unit() - 6.0);
+        let scale = dcrt::colormap::scale(lo, lo + width);
+        // On a boundary k / 256 of the range, one float either side, or anywhere.
+        let k = (m.next() % 258) as f32 - 1.0;
+        let on = lo + k * width / 256.0;
+        let s = match m.next() % 8 {
+            0 => on,
+            1 => f32::from_bits(on.to_bits().wrapping_add(1)),
+            2 => f32::from_bits(on.to_bits().wrapping_sub(1)),
+            3 => [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, lo][i % 4],
+            _ => lo + width * (1.4 * m.unit() - 0.2),
+        };
+        c.c = [s, lo, scale, 0.0];
+    }
+    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let mut bins = std::collections::BTreeSet::new();
+    for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
+        let [s, lo, scale, _] = c.c;
+        let cpu = colormap(s, lo, scale, c.words[2] % 4);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(&r.color[..3]),
+            bits(&cpu),
+            "colormap({s}, {lo}, {scale}, {}), case {i}",
+            c.words[2] % 4
+        );
+        assert_eq!(
+            bits(&r.rgb[..3]),
+            bits(&srgb_color(c.words[0])),
+            "srgb_color({:#x}), case {i}",
+            c.words[0]
+        );
+        bins.insert(bin(s, lo, scale));
+    }
+    // The cases reach every bin, the first and the last included.
+    assert_eq!(bins.len(), 256, "bins reached: {}", bins.len());
 }
 
 /// `dot_difference(n, v, o)` (shared/compensated.wgsl), the extended-precision plane distance of

@@ -390,3 +390,53 @@ fn an_interrupted_prepare_removes_its_temporary_files() {
     assert!(err.contains("interrupted by SIGTERM"), "{err}");
     assert_eq!(listing(&d.0), ["quad.obj", "s.toml"]);
 }
+
+/// A PLY grid of `n` x `n` quads with a point property `value`.
+fn coloured_grid(d: &TempDir, n: usize) -> std::path::PathBuf {
+    let mut ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nproperty float value\nelement face {}\n\
+         property list uchar int vertex_indices\nend_header\n",
+        (n + 1) * (n + 1),
+        n * n
+    );
+    for j in 0..=n {
+        for i in 0..=n {
+            ply += &format!("{i} {j} 0 {}\n", i + j);
+        }
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let v = j * (n + 1) + i;
+            ply += &format!("4 {v} {} {} {}\n", v + 1, v + n + 2, v + n + 1);
+        }
+    }
+    d.write("grid.ply", ply);
+    d.write(
+        "s.toml",
+        "[[mesh]]\nfile = \"grid.ply\"\ncolor_by = \"value\"\n",
+    )
+}
+
+#[test]
+fn colours_by_data_are_built_in_memory_or_refused_never_dropped() {
+    // 2 x 180^2 = 64,800 triangles: more than a 16 MiB budget builds in memory, and out of core
+    // the attribute blocks would be lost.
+    let d = TempDir::new("prep-colour");
+    let s = coloured_grid(&d, 180);
+    let dcb = d.path("m.dcb");
+    let (good, err) = run(&[&"prepare", &s, &"-o", &dcb, &"--memory", &"16MiB"]);
+    assert!(!good, "a coloured model was prepared out of core: {err}");
+    assert!(
+        err.contains("mesh 1 is coloured by data") && err.contains("raise --memory"),
+        "{err}"
+    );
+    assert_eq!(listing(&d.0), ["grid.ply", "s.toml"]);
+    let log = ok(&[&"prepare", &s, &"-o", &dcb, &"--memory", &"64MiB"]);
+    assert!(
+        log.contains("attribute blocks") && log.contains("in memory"),
+        "{log}"
+    );
+    let f = DcbFile::open(&dcb).unwrap();
+    assert!(f.meta.attrs.blocks > 0, "no attribute blocks");
+}

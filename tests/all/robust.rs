@@ -787,11 +787,13 @@ fn deep_tracer<'g>(
     let meshes = Meshes {
         first_prim: vec![0],
         colors: vec![[1.0; 3]],
+        looks: Vec::new(),
     };
     let model = GpuModel {
         format: blocks.format,
         node_blocks: blocks.node_blocks,
         tri_blocks: blocks.tri_blocks,
+        attrs: blocks.attrs,
         resident: &blocks.words,
         meshes: &meshes,
         depth: declared,
@@ -845,6 +847,7 @@ fn traversal_stack_overflow_is_an_error() {
         focal_point: [0.0, 0.0, 0.0],
         view_up: [0.0, 1.0, 0.0],
         view_angle: 30.0,
+        parallel_scale: None,
     };
     let err = tracer
         .render(&camera.basis(16, 16), [0.0; 3])

@@ -46,6 +46,7 @@ fn camera_at(center: [f64; 3], radius: f64, distance: f64) -> Camera {
         focal_point: center,
         view_up: [0.0, 0.0, 1.0],
         view_angle: 2.4 * (radius / distance).asin().to_degrees(),
+        parallel_scale: None,
     }
 }
 

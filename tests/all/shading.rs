@@ -48,6 +48,7 @@ fn camera() -> Camera {
         focal_point: [0.0, 0.0, 0.0],
         view_up: [0.0, 0.0, 1.0],
         view_angle: 40.0,
+        parallel_scale: None,
     }
 }
 

@@ -121,6 +121,7 @@ fn degenerate_triangles_are_never_hit() {
         focal_point: [0.0, 0.0, 0.0],
         view_up: [0.0, 0.0, 1.0],
         view_angle: 60.0,
+        parallel_scale: None,
     };
     let (frame, _) = render(&gpu, &prepared, &camera, 64, 64, Settings::default());
     let hits: Vec<u32> = frame

@@ -3,6 +3,7 @@
 
 mod bench;
 mod checks;
+mod headless;
 mod info;
 mod prepare;
 mod render;
@@ -37,8 +38,11 @@ struct Cli {
 enum Command {
     /// Render a scene to PNG (and EXR).
     Render(RenderArgs),
-    /// Show the GPU adapters, the one dcrt would use, its limits and features.
+    /// Show the GPU adapters, the one dcrt would use, its limits and features; or, given a
+    /// mesh file, its points, triangles, bounds and data arrays (what `color_by` can name).
     Info {
+        /// A mesh file to describe instead.
+        file: Option<PathBuf>,
         /// Use the first adapter whose name contains this text.
         #[arg(long)]
         adapter: Option<String>,
@@ -178,6 +182,14 @@ struct RenderArgs {
     /// PNG exposure in stops (the EXR stays linear).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     exposure: f32,
+    /// Draw a colour legend (a scalar bar with the array's name and range) on the PNG, for each
+    /// array whose values colour the image (`color_by`).
+    #[arg(long)]
+    legend: bool,
+    /// The camera of a ParaView camera file (.pvcc, saved by ParaView's Adjust Camera dialog):
+    /// position, focal point, view up, view angle, and parallel projection when set.
+    #[arg(long)]
+    camera: Option<PathBuf>,
     /// Off a terminal, print how far a frame is every this many seconds (a long render with
     /// many samples); on a terminal a progress bar shows it.
     #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
@@ -328,6 +340,12 @@ struct BenchArgs {
     /// --shading: also draw the curves into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Fuzz every mesh loader for this many seconds each with mutations of the shipped files
+    /// (scenes/meshes/, tests/data/vtk/; run from the repository): counts of inputs read and
+    /// refused, and any input that panics, breaks a loader's promise or takes over a second,
+    /// saved in fuzz-crashes/.
+    #[arg(long)]
+    fuzz_loaders: Option<f64>,
     /// Memory soak: render an orbit of this many frames in one process (rank --rank of
     /// --virtual-ranks with the first of --caches, `none` replicating) and report resident
     /// memory at intervals and its slope in bytes per frame.
@@ -378,6 +396,8 @@ struct BenchArgs {
 fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    // Before any thread or GPU: a headless run must not print window-system noise.
+    headless::rerun_quietly();
     // An interrupted command leaves none of its outputs (docs/ARCHITECTURE.md, Outputs).
     let grace = match dcrt::cluster::launched_ranks() {
         Some(k) if k > 1 => std::time::Duration::from_millis(500),
@@ -389,7 +409,10 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Render(a) => render::render(a),
-        Command::Info { adapter } => info::info(adapter.as_deref()),
+        Command::Info {
+            file: Some(file), ..
+        } => info::mesh(&file),
+        Command::Info { adapter, .. } => info::info(adapter.as_deref()),
         Command::Prepare(a) => prepare::prepare(a),
         Command::Bench(a) => bench::bench(a),
         Command::Trace(a) => trace::trace(a),
@@ -462,6 +485,12 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         timeout: std::time::Duration::from_secs(c.timeout),
         display_bench: c.display_bench,
         stats: c.stats.clone(),
+        legend: a.legend,
+        camera: a
+            .camera
+            .as_deref()
+            .map(dcrt::scene::pvcc::load_pvcc)
+            .transpose()?,
     };
     // A failed job leaves none of the frames this rank wrote, as in one process.
     dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;

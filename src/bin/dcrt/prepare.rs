@@ -39,11 +39,15 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
         ),
     };
     eprintln!(
-        "{} triangles, {} node + {} triangle blocks of {} bytes ({} MiB), BVH depth {}, built {how} \
-         in {:.1} s, wrote {}",
+        "{} triangles, {} node + {} triangle{} blocks of {} bytes ({} MiB), BVH depth {}, built \
+         {how} in {:.1} s, wrote {}",
         r.triangles,
         r.node_blocks,
         r.tri_blocks,
+        match r.attr_blocks {
+            0 => String::new(),
+            n => format!(" + {n} attribute"),
+        },
         r.block_bytes,
         r.bytes() >> 20,
         r.depth,

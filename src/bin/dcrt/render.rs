@@ -11,7 +11,7 @@ use dcrt::output;
 use dcrt::progress::{Progress, say};
 use dcrt::render::frames::{FramePlan, Role, View, hit_rate, run_images};
 use dcrt::render::{Loaded, memory, mib};
-use dcrt::scene::{Scene, check_image_size};
+use dcrt::scene::{Scene, check_image_size, pvcc};
 use dcrt::shading::Shading;
 use std::path::Path;
 
@@ -43,7 +43,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
     if let Some(stats) = &a.cluster.stats {
         outputs.push(("statistics", stats.as_path(), 1));
     }
-    output::check_outputs(&outputs, &Scene::input_files(&a.scene)?)?;
+    let mut inputs = Scene::input_files(&a.scene)?;
+    inputs.extend(a.camera.clone());
+    output::check_outputs(&outputs, &inputs)?;
     if let Some(dir) = &a.trace {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
@@ -78,7 +80,15 @@ fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
 
 fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
-    let loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let camera = a.camera.as_deref().map(pvcc::load_pvcc).transpose()?;
+    let mut loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    if let Some(c) = camera {
+        loaded.camera = c;
+    }
+    let legend = a
+        .legend
+        .then(|| dcrt::legend::Legend::new(&loaded.meshes.looks, loaded.background))
+        .transpose()?;
     let mut report = Vec::new();
     let width = a.width.unwrap_or(loaded.width);
     let height = a.height.unwrap_or(loaded.height);
@@ -153,7 +163,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                 report.push(stats.clone());
             }
             let png = numbered(&a.output);
-            output::write_png_exposed(&png, &frame, a.exposure)?;
+            output::write_png_legend(&png, &frame, a.exposure, legend.as_ref())?;
             if let Some(exr) = &a.exr {
                 let exr = numbered(exr);
                 output::write_exr(&exr, &frame, &a.aov)?;

@@ -144,9 +144,7 @@ fn ascii_record(text: &str, el: &Element, b: &mut Builder) -> std::result::Resul
         match p.kind {
             Kind::Scalar(t) => {
                 let v = t.parse_text(next(p)?)?;
-                if let Role::Coord(k) = p.role {
-                    b.xyz[k] = v;
-                }
+                b.scalar(p.role, v);
             }
             Kind::List { count, item } => {
                 let n = count.parse_text(next(p)?)?;

@@ -144,9 +144,7 @@ fn record_from_slice(
                 let Some(v) = data.get(at..at + t.size()) else {
                     return Ok(None);
                 };
-                if let Role::Coord(k) = p.role {
-                    b.xyz[k] = t.decode(v, big);
-                }
+                b.scalar(p.role, t.decode(v, big));
                 at += t.size();
             }
             Kind::List { count, item } => {
@@ -187,9 +185,7 @@ fn binary_record<R: BufRead>(
             Kind::Scalar(t) => {
                 let bytes = &mut scratch[..t.size()];
                 r.read_exact(bytes)?;
-                if let Role::Coord(k) = p.role {
-                    b.xyz[k] = t.decode(bytes, big);
-                }
+                b.scalar(p.role, t.decode(bytes, big));
             }
             Kind::List { count, item } => {
                 let bytes = &mut scratch[..count.size()];

@@ -88,6 +88,8 @@ pub(super) enum Role {
     Skip,
     Coord(usize),
     Indices,
+    /// A component of a kept data array: the record slot it goes to.
+    Value(usize),
 }
 
 #[derive(Debug)]
@@ -332,6 +334,98 @@ fn assign_roles(e: &mut Element) -> std::result::Result<(), String> {
         Target::Other => {}
     }
     Ok(())
+}
+
+/// A kept data array of the vertex or face element.
+pub(super) struct KeptArray {
+    /// Index into `MeshData::arrays` (and `kept`).
+    pub(super) index: usize,
+    pub(super) target: Target,
+    /// The record slots of its components, in order.
+    pub(super) slots: Vec<usize>,
+    /// Integer colours are scaled to [0, 1] by this.
+    pub(super) scale: f64,
+}
+
+/// Lists the data arrays of the vertex and face elements, as ParaView names them where it reads
+/// them (`red`, `green`, `blue` and `alpha` make one colour array "RGB", `nx`, `ny`, `nz`
+/// "Normals"; every other scalar property is an array of its own name), and marks the
+/// properties of those `keep` asks for. Returns the kept arrays and the record slots they use.
+pub(super) fn data_arrays(
+    header: &mut Header,
+    keep: &crate::scene::data::Keep,
+    data: &mut crate::scene::data::MeshData,
+) -> (Vec<KeptArray>, usize) {
+    use crate::scene::data::{ArrayInfo, Assoc, Encoding};
+    let mut kept = Vec::new();
+    let mut slots = 0;
+    for e in &mut header.elements {
+        let assoc = match e.target {
+            Target::Vertices => Assoc::Point,
+            Target::Faces => Assoc::Cell,
+            Target::Other => continue,
+        };
+        // (array name, property indices, colour)
+        let mut groups: Vec<(String, Vec<usize>, bool)> = Vec::new();
+        let find = |n: &str| {
+            e.props
+                .iter()
+                .position(|p| p.name == n && matches!(p.kind, Kind::Scalar(_)))
+        };
+        let colour: Vec<usize> = ["red", "green", "blue", "alpha"]
+            .iter()
+            .map_while(|n| find(n))
+            .collect();
+        if colour.len() >= 3 {
+            groups.push(("RGB".into(), colour, true));
+        }
+        let normal: Vec<usize> = ["nx", "ny", "nz"].iter().map_while(|n| find(n)).collect();
+        if normal.len() == 3 {
+            groups.push(("Normals".into(), normal, false));
+        }
+        for (i, p) in e.props.iter().enumerate() {
+            if p.role == Role::Skip
+                && matches!(p.kind, Kind::Scalar(_))
+                && !groups.iter().any(|g| g.1.contains(&i))
+            {
+                groups.push((p.name.clone(), vec![i], false));
+            }
+        }
+        groups.sort_by_key(|g| g.1[0]);
+        for (name, props, color) in groups {
+            let Kind::Scalar(t) = e.props[props[0]].kind else {
+                continue;
+            };
+            let index = data.offer(ArrayInfo {
+                name: name.clone(),
+                assoc,
+                components: props.len(),
+                ty: t.name().into(),
+                color: color.then_some(Encoding::Srgb),
+            });
+            if !keep.wants(&name, assoc) {
+                continue;
+            }
+            let mut used = Vec::new();
+            for &i in &props {
+                e.props[i].role = Role::Value(slots);
+                used.push(slots);
+                slots += 1;
+            }
+            let scale = if color && t.is_int() {
+                1.0 / t.int_range().1 as f64
+            } else {
+                1.0
+            };
+            kept.push(KeptArray {
+                index,
+                target: e.target,
+                slots: used,
+                scale,
+            });
+        }
+    }
+    (kept, slots)
 }
 
 #[cfg(test)]

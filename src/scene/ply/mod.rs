@@ -1,9 +1,10 @@
 //! Stanford PLY loading: `ascii`, `binary_little_endian` and `binary_big_endian` 1.0.
 //!
-//! Only vertex positions (`x`, `y`, `z` of element `vertex`) and face index lists
-//! (`vertex_indices` or `vertex_index` of element `face`) are kept. Every other property and
-//! element is still parsed, so that its bytes are skipped correctly and a file whose data does
-//! not match its header is reported instead of being misread.
+//! Vertex positions (`x`, `y`, `z` of element `vertex`) and face index lists (`vertex_indices`
+//! or `vertex_index` of element `face`) make the mesh; the other scalar properties of vertices
+//! and faces are its point and cell data arrays (`header::data_arrays`), kept when asked for.
+//! Every other property and element is still parsed, so that its bytes are skipped correctly
+//! and a file whose data does not match its header is reported instead of being misread.
 //!
 //! Here: the load API and the record builder the body readers share; `header`: the header
 //! parser; `ascii` and `binary`: the body readers.
@@ -15,10 +16,11 @@ mod fixtures;
 mod header;
 
 use crate::error::{Error, Result};
+use crate::scene::data::{Keep, MeshData, Values};
 use crate::scene::mesh::{Mesh, Piece};
 use ascii::read_ascii;
 use binary::read_binary;
-use header::{Format, Header, Target};
+use header::{Format, Header, KeptArray, Role, Target};
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read};
 use std::path::Path;
@@ -40,17 +42,34 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
 /// file order. Header errors name the header line; data errors name the element and its index
 /// (and the line, for ascii files).
 pub fn parse_ply<R: BufRead>(reader: R, origin: &Path) -> Result<Mesh> {
-    read_ply(reader, origin, None)
+    parse_ply_data(reader, origin, &Keep::None).map(|(mesh, _)| mesh)
+}
+
+/// Reads the PLY file at `path` with its data arrays, keeping the values of those `keep` asks
+/// for.
+pub fn load_ply_data(path: &Path, keep: &Keep) -> Result<(Mesh, MeshData)> {
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    parse_ply_data(BufReader::with_capacity(1 << 18, file), path, keep)
+}
+
+/// `parse_ply` with the data arrays (see `load_ply_data`).
+pub fn parse_ply_data<R: BufRead>(
+    reader: R,
+    origin: &Path,
+    keep: &Keep,
+) -> Result<(Mesh, MeshData)> {
+    read_ply(reader, origin, keep, None)
 }
 
 /// Reads the PLY file at `path` as `load_ply` does, handing its triangles to `piece` with the
 /// vertices, `PIECE` at a time, so that the triangles are never all held: every vertex is kept
 /// (a face may use any), so a file of more than `max_vertices` vertices is refused at its
-/// header. Faces written before the vertices are held until the vertices are read.
+/// header. Faces written before the vertices are held until the vertices are read. Data arrays
+/// are not read.
 pub fn stream_ply(path: &Path, max_vertices: u64, piece: &mut Piece) -> Result<()> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let mut reader = BufReader::with_capacity(1 << 18, file);
-    read_ply(&mut reader, path, Some((max_vertices, piece))).map(drop)
+    read_ply(&mut reader, path, &Keep::None, Some((max_vertices, piece))).map(drop)
 }
 
 /// Triangles handed on at a time when streaming.
@@ -59,9 +78,12 @@ const PIECE: usize = 1 << 16;
 fn read_ply<'a, 'p, R: BufRead>(
     mut reader: R,
     origin: &Path,
+    keep: &Keep,
     stream: Option<(u64, &'a mut Piece<'p>)>,
-) -> Result<Mesh> {
-    let header = Header::read(&mut reader, origin)?;
+) -> Result<(Mesh, MeshData)> {
+    let mut header = Header::read(&mut reader, origin)?;
+    let mut data = MeshData::default();
+    let (kept, slots) = header::data_arrays(&mut header, keep, &mut data);
     let count = |target| {
         header
             .elements
@@ -92,6 +114,11 @@ fn read_ply<'a, 'p, R: BufRead>(
         poly: Vec::new(),
         piece: stream.map(|s| s.1),
         failed: None,
+        values: kept.iter().map(|k| Values::new(k.slots.len())).collect(),
+        kept,
+        record: vec![0.0; slots],
+        cells: keep.cells().then(Vec::new),
+        faces: 0,
     };
     let read = match header.format {
         Format::Ascii => read_ascii(&mut reader, &header, &mut b, origin),
@@ -109,7 +136,9 @@ fn read_ply<'a, 'p, R: BufRead>(
             Error::Internal("a streamed PLY's consumer failed without an error".into())
         }));
     }
-    Ok(b.mesh)
+    data.kept = b.kept.iter().map(|k| k.index).zip(b.values).collect();
+    data.triangle_cells = b.cells.unwrap_or_default();
+    Ok((b.mesh, data))
 }
 
 /// Collects decoded values into the mesh, one record at a time; when streaming, hands on the
@@ -122,9 +151,36 @@ struct Builder<'a, 'p> {
     piece: Option<&'a mut Piece<'p>>,
     /// What the piece's consumer failed with.
     failed: Option<Error>,
+    /// The kept data arrays, their values, and the current record's values by slot.
+    kept: Vec<KeptArray>,
+    values: Vec<Values>,
+    record: Vec<f64>,
+    /// Each triangle's face, when cell arrays may be kept.
+    cells: Option<Vec<u32>>,
+    faces: u32,
 }
 
 impl Builder<'_, '_> {
+    /// A decoded scalar property.
+    #[inline]
+    fn scalar(&mut self, role: Role, v: f64) {
+        match role {
+            Role::Coord(k) => self.xyz[k] = v,
+            Role::Value(s) => self.record[s] = v,
+            Role::Skip | Role::Indices => {}
+        }
+    }
+
+    /// Appends the current record's values to the kept arrays of `target`.
+    fn keep(&mut self, target: Target) {
+        for (k, v) in self.kept.iter().zip(&mut self.values) {
+            if k.target == target {
+                v.data
+                    .extend(k.slots.iter().map(|&s| (self.record[s] * k.scale) as f32));
+            }
+        }
+    }
+
     /// Hands the triangles read so far on, when streaming and every vertex has been read (at
     /// the end, `last`, whatever is left). `Err` when the consumer failed: its error is in
     /// `failed`.
@@ -173,6 +229,7 @@ impl Builder<'_, '_> {
                     return Err(format!("coordinate is not finite: {p:?}"));
                 }
                 self.mesh.positions.push(p);
+                self.keep(target);
             }
             Target::Faces => {
                 let poly = &self.poly;
@@ -185,7 +242,12 @@ impl Builder<'_, '_> {
                 for k in 1..poly.len() - 1 {
                     self.mesh.triangles.push([poly[0], poly[k], poly[k + 1]]);
                 }
+                if let Some(c) = self.cells.as_mut() {
+                    c.extend(std::iter::repeat_n(self.faces, poly.len() - 2));
+                }
+                self.faces = self.faces.wrapping_add(1);
                 self.poly.clear();
+                self.keep(target);
                 self.flush(false)
                     .map_err(|()| "the triangles read could not be passed on".to_string())?;
             }
@@ -398,6 +460,58 @@ mod tests {
     }
 
     #[test]
+    fn vertex_and_face_properties_are_data_arrays() {
+        use crate::scene::data::Assoc;
+        // The cube's vertices carry nx, s, red and u; faces flags (and a texcoord list, not an
+        // array). With red, green, blue the vertices get an "RGB" colour array.
+        let mut els = cube_elements("float", "uchar", "int");
+        els[1].props.push(P::S("uchar", "green"));
+        els[1].props.push(P::S("uchar", "blue"));
+        for (i, row) in els[1].rows.iter_mut().enumerate() {
+            row[6] = i as f64;
+            row.extend([51.0, 0.0]);
+        }
+        for (i, row) in els[3].rows.iter_mut().enumerate() {
+            row[0] = 10.0 * i as f64;
+        }
+        for format in FORMATS {
+            let file = write_ply(format, &els);
+            let (mesh, d) = parse_ply_data(&file[..], Path::new("t.ply"), &Keep::All).unwrap();
+            assert_same(&mesh, &expected_cube());
+            let names: Vec<String> = d.arrays.iter().map(|a| a.to_string()).collect();
+            assert_eq!(
+                names,
+                [
+                    "nx (point data, 1 x float)",
+                    "s (point data, 1 x short)",
+                    "RGB (point data, 3 x uchar, colours)",
+                    "u (point data, 1 x double)",
+                    "flags (cell data, 1 x uchar)"
+                ]
+            );
+            assert_eq!(
+                d.values(3).unwrap().data,
+                (0..8).map(|i| i as f32).collect::<Vec<_>>()
+            );
+            assert_eq!(d.values(2).unwrap().data[..3], [1.0, 0.2, 0.0]);
+            // Two triangles per face, each of its face.
+            assert_eq!(d.triangle_cells, vec![0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5]);
+            assert_eq!(
+                d.values(4).unwrap().data,
+                vec![0.0, 10.0, 20.0, 30.0, 40.0, 50.0]
+            );
+            // Only what is asked for is kept.
+            let keep = Keep::One {
+                name: "u".into(),
+                assoc: Assoc::Point,
+            };
+            let (_, d) = parse_ply_data(&file[..], Path::new("t.ply"), &keep).unwrap();
+            assert_eq!(d.kept.len(), 1);
+            assert!(d.triangle_cells.is_empty());
+        }
+    }
+
+    #[test]
     fn missing_file_is_an_io_error() {
         let err = load_ply(Path::new("/nonexistent/missing.ply")).unwrap_err();
         assert!(matches!(err, Error::Io { .. }));
@@ -505,6 +619,7 @@ mod tests {
                 read_ply(
                     &bytes[..],
                     Path::new("s.ply"),
+                    &Keep::None,
                     Some((u64::MAX, &mut |pos: &[[f32; 3]], t: &[[u32; 3]]| {
                         got.extend(
                             t.iter()
@@ -520,9 +635,14 @@ mod tests {
             }
             let bytes = grid_ply(format, 200, false);
             let mut none = |_: &[[f32; 3]], _: &[[u32; 3]]| Ok(());
-            let e = read_ply(&bytes[..], Path::new("s.ply"), Some((1000, &mut none)))
-                .unwrap_err()
-                .to_string();
+            let e = read_ply(
+                &bytes[..],
+                Path::new("s.ply"),
+                &Keep::None,
+                Some((1000, &mut none)),
+            )
+            .unwrap_err()
+            .to_string();
             assert!(
                 e.contains("40000 vertices") && e.contains("raise --memory"),
                 "{e}"
@@ -532,8 +652,13 @@ mod tests {
                 calls += 1;
                 Err(Error::Invalid("disk full".into()))
             };
-            let e =
-                read_ply(&bytes[..], Path::new("s.ply"), Some((u64::MAX, &mut fail))).unwrap_err();
+            let e = read_ply(
+                &bytes[..],
+                Path::new("s.ply"),
+                &Keep::None,
+                Some((u64::MAX, &mut fail)),
+            )
+            .unwrap_err();
             assert_eq!((calls, e.to_string()), (1, "disk full".to_string()));
         }
     }

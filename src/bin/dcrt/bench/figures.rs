@@ -22,7 +22,7 @@ use dcrt::traces::plot::PALETTE;
 use dcrt::traces::simulate::{Model, Sharing, simulate};
 use plotters::prelude::*;
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 /// The chapter's interconnect: 4x DDR InfiniBand, 1868 MB/s measured by `ib_read_bw`.
@@ -137,7 +137,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         caches.push(c.clone());
     }
     let format = Format::new(a.gpu.block_size)?;
-    let font = load_font()?;
+    let font = dcrt::legend::font()?.to_string();
     let runs = out.join("runs");
     std::fs::create_dir_all(&runs).with_context(|| format!("{}: cannot create", runs.display()))?;
     let exe = std::env::current_exe().context("the path of this dcrt")?;
@@ -450,36 +450,6 @@ fn job(
         );
     }
     Ok(())
-}
-
-/// The figures' text needs a TrueType font: `DCRT_FONT`, else DejaVu Sans where Debian's
-/// fonts-dejavu-core puts it (scripts/setup.sh installs it).
-fn load_font() -> Result<String> {
-    const FAMILY: &str = "dcrt-sans";
-    let candidates: Vec<PathBuf> = match std::env::var_os("DCRT_FONT") {
-        Some(p) => vec![PathBuf::from(p)],
-        None => vec![
-            PathBuf::from("/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"),
-            PathBuf::from("/usr/share/fonts/TTF/DejaVuSans.ttf"),
-        ],
-    };
-    for p in &candidates {
-        if let Ok(bytes) = std::fs::read(p) {
-            // plotters keeps fonts for the life of the process.
-            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-            plotters::style::register_font(FAMILY, FontStyle::Normal, bytes)
-                .map_err(|_| anyhow!("{}: not a TrueType font", p.display()))?;
-            return Ok(FAMILY.into());
-        }
-    }
-    bail!(
-        "no font for the figures' text at {}: install fonts-dejavu-core (scripts/setup.sh) or set DCRT_FONT to a .ttf file",
-        candidates
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect::<Vec<_>>()
-            .join(" or ")
-    )
 }
 
 /// The caches of the runs in order, then those only the chapter's points have.

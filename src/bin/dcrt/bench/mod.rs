@@ -1,10 +1,12 @@
 //! `dcrt bench`: the measurements behind the README's figures. Primary-ray throughput per BVH
 //! preset and block store (`trace`), the distributed-cache sweep (`dc`), shading time against
-//! error (`shading`), and cluster jobs under mpirun (`cluster`).
+//! error (`shading`), cluster jobs under mpirun (`cluster`), and the mesh loaders' fuzzing
+//! (`fuzz`).
 
 mod cluster;
 mod dc;
 mod figures;
+mod fuzz;
 pub mod shading;
 mod soak;
 mod trace;
@@ -32,6 +34,9 @@ use dcrt::scene::generate::Generator;
 use dcrt::scene::{Scene, check_image_size};
 
 pub fn bench(a: BenchArgs) -> Result<()> {
+    if let Some(seconds) = a.fuzz_loaders {
+        return fuzz::run(seconds, a.json);
+    }
     if a.runs == 0 {
         bail!("--runs must be at least 1");
     }

@@ -220,6 +220,7 @@ mod tests {
             up: [0.0, 0.4, 0.0],
             width: 8,
             height: 4,
+            parallel: false,
         };
         let d = scratch("dir");
         write_dir(&d, &model, &basis, ([1.0; 3], 3, 3, 7), &[1, 2, 4]).unwrap();
