@@ -107,16 +107,7 @@ impl Tracer<'_> {
             enc.copy_buffer_to_buffer(&b.counters[cur], 0, &b.readback, at, size);
             let (at, size) = member!(stats, super::layout::Stats);
             enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, at, size);
-            if let Some(dc) = &self.dc {
-                let bufs = &self.dc_bufs;
-                let bytes = fault_bytes(self.params.dc_fault_cap);
-                enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
-                // The lines' waiting rays, then which lines the round used.
-                let wait_bytes = 4 * u64::from(dc.policy.lines());
-                enc.copy_buffer_to_buffer(&bufs.waiters, 0, &b.waiter_readback, 0, wait_bytes);
-                let r = &b.waiter_readback;
-                enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
-            }
+            self.copy_faults(&mut enc);
             let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
             let data = gpu.map_read(&b.readback)?;
@@ -191,14 +182,8 @@ impl Tracer<'_> {
                 gpu.queue.submit([enc.finish()]);
                 return Ok(());
             };
-            let bufs = &self.dc_bufs;
-            let b = &self.batch;
-            let bytes = fault_bytes(self.params.dc_fault_cap);
-            enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
             let wait_bytes = 4 * u64::from(dc.policy.lines());
-            enc.copy_buffer_to_buffer(&bufs.waiters, 0, &b.waiter_readback, 0, wait_bytes);
-            let r = &b.waiter_readback;
-            enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
+            self.copy_faults(&mut enc);
             let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
             let faults = gpu.map_read(&self.batch.fault_readback)?;
@@ -229,6 +214,21 @@ impl Tracer<'_> {
             beginning_of_pass_write_index: begin.then_some(0),
             end_of_pass_write_index: end.then_some(1),
         })
+    }
+
+    /// Copies a round's fault list, the lines' waiting rays and then which lines the round used
+    /// into the readback buffers `serve_faults` reads.
+    fn copy_faults(&self, enc: &mut wgpu::CommandEncoder) {
+        let Some(dc) = &self.dc else {
+            return;
+        };
+        let (bufs, b) = (&self.dc_bufs, &self.batch);
+        let bytes = fault_bytes(self.params.dc_fault_cap);
+        enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
+        let wait_bytes = 4 * u64::from(dc.policy.lines());
+        let r = &b.waiter_readback;
+        enc.copy_buffer_to_buffer(&bufs.waiters, 0, r, 0, wait_bytes);
+        enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
     }
 
     pub(super) fn clear_faults(&self, enc: &mut wgpu::CommandEncoder) {

@@ -548,6 +548,28 @@ impl Reader<'_> {
     }
 }
 
+/// A GLB file of a JSON chunk and a binary chunk, each padded to 4 bytes (the glTF 2.0 binary
+/// container, as the loader reads it; the fuzzer and the tests make GLB files with it).
+pub fn glb_container(mut json: Vec<u8>, mut bin: Vec<u8>) -> Vec<u8> {
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let mut out = Vec::with_capacity(28 + json.len() + bin.len());
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -636,25 +658,7 @@ pub(crate) mod tests {
             .decode(uri.split_once(";base64,").unwrap().1)
             .unwrap();
         j["buffers"][0].as_object_mut().unwrap().remove("uri");
-        let mut json = serde_json::to_vec(&j).unwrap();
-        while !json.len().is_multiple_of(4) {
-            json.push(b' ');
-        }
-        let mut bin = bin;
-        while !bin.len().is_multiple_of(4) {
-            bin.push(0);
-        }
-        let mut out = Vec::new();
-        out.extend_from_slice(b"glTF");
-        out.extend_from_slice(&2u32.to_le_bytes());
-        out.extend_from_slice(&((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
-        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"JSON");
-        out.extend_from_slice(&json);
-        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(&bin);
-        out
+        glb_container(serde_json::to_vec(&j).unwrap(), bin)
     }
 
     #[test]

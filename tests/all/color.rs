@@ -7,7 +7,7 @@ use crate::common::*;
 use dcrt::colormap::Colormap;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::gpu::tracer::Settings;
 use dcrt::mirror::colormap::{colormap, srgb_color};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::{Camera, Model, Scene};
@@ -76,16 +76,6 @@ fn mixed_scene(d: &TempDir) -> Scene {
     Scene::load(&path).unwrap()
 }
 
-fn same(a: &Frame, b: &Frame, what: &str) {
-    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
-        assert_eq!(
-            bytemuck::bytes_of(p),
-            bytemuck::bytes_of(q),
-            "{what}: pixel {i}"
-        );
-    }
-}
-
 fn shading(mode: Mode) -> Shading {
     Shading {
         mode,
@@ -122,7 +112,7 @@ fn images_are_the_same_through_every_cache() {
             .unwrap()
             .render(&basis, [0.1, 0.2, 0.3])
             .unwrap();
-        same(&reference, &b, &format!("{mode:?} buffer store"));
+        same_pixels(&reference, &b, &format!("{mode:?} buffer store"));
         for (n, size, map) in [
             (2, "1line", CacheMap::Ize),
             (3, "1/8", CacheMap::Demarle),
@@ -138,7 +128,7 @@ fn images_are_the_same_through_every_cache() {
             let mut t = p.tracer_dc(&gpu, settings, &o).unwrap();
             let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
             let what = format!("{mode:?} N={n} cache {size} {map:?}");
-            same(&reference, &frame, &what);
+            same_pixels(&reference, &frame, &what);
             // Attribute blocks were borrowed and fetched like any block.
             let attr0 = p.blocks.node_blocks + p.blocks.tri_blocks;
             let fetched_attr = t
@@ -211,7 +201,7 @@ fn cell_colours_are_the_cpu_twins_bit_for_bit() {
         let (a, _) = render(&gpu, &coloured, &camera, W, H, Settings::default());
         let (b, _) = render(&gpu, &plain, &camera, W, H, Settings::default());
         assert!(a.pixels.iter().filter(|p| !is_miss(p)).count() > 400);
-        same(&a, &b, &format!("{key} {extra}"));
+        same_pixels(&a, &b, &format!("{key} {extra}"));
     }
 }
 

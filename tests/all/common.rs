@@ -157,3 +157,14 @@ pub fn limited(blocks: u32, args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::proces
     }
     cmd.output().unwrap()
 }
+
+/// Asserts that two frames are bit-identical, naming the first pixel that is not.
+pub fn same_pixels(a: &Frame, b: &Frame, what: &str) {
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(
+            bytemuck::bytes_of(p),
+            bytemuck::bytes_of(q),
+            "{what}: pixel {i}"
+        );
+    }
+}

@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::gpu::tracer::Settings;
 use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
@@ -18,16 +18,6 @@ fn model(g: Generator, triangles: u64) -> (Prepared, Camera) {
     let model = scene.load_model().unwrap();
     let camera = scene.camera_or_default(&model);
     (prepare(model), camera)
-}
-
-fn same(a: &Frame, b: &Frame, what: &str) {
-    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
-        assert_eq!(
-            bytemuck::bytes_of(p),
-            bytemuck::bytes_of(q),
-            "{what}: pixel {i}"
-        );
-    }
 }
 
 fn sweep(g: Generator) {
@@ -56,7 +46,7 @@ fn sweep(g: Generator) {
                     "{what}: setup {t1:?} frame {:.3}s rounds {} fetched {}",
                     stats.seconds, stats.rounds, stats.fetched_blocks
                 );
-                same(&reference, &frame, &what);
+                same_pixels(&reference, &frame, &what);
                 let mut trace = t.take_trace();
                 let cache = t.cache().map(|(_, lines, map)| (lines, map));
                 trace.summary = summarize(&stats, cache, 0, Role::one_process(&t));
@@ -156,7 +146,7 @@ fn batches_shrink_to_the_blocks_a_cache_holds_and_images_stay_the_same() {
         let want = tiles.div_ceil(fit / 64);
         assert_eq!(u64::from(s2.batches), want, "{what}");
         assert!(s2.batches > 1, "{what}");
-        same(&reference, &first, &what);
-        same(&reference, &second, &what);
+        same_pixels(&reference, &first, &what);
+        same_pixels(&reference, &second, &what);
     }
 }

@@ -334,21 +334,10 @@ fn glb_of(gltf: &[u8]) -> Result<Vec<u8>> {
         v["byteOffset"] = offset.into();
     }
     j["buffers"] = serde_json::json!([{ "byteLength": bin.len() }]);
-    let mut json = serde_json::to_vec(&j)?;
-    while json.len() % 4 != 0 {
-        json.push(b' ');
-    }
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
-    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&json);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    Ok(out)
+    Ok(dcrt::scene::gltf::glb_container(
+        serde_json::to_vec(&j)?,
+        bin,
+    ))
 }
 
 /// xorshift64: reproducible runs without a dependency.
