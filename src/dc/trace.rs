@@ -98,6 +98,9 @@ pub struct Round {
     pub fetch_us: f64,
     pub upload_us: f64,
     pub source: String,
+    /// Cache lines in which the round's rays found their block (0 in traces of older builds).
+    #[serde(default)]
+    pub used_lines: u32,
     /// When the round's dispatches were submitted, in ms since the trace epoch (absent in traces
     /// of older builds).
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -278,6 +278,7 @@ impl Tracer<'_> {
             start_ms: Some(crate::dc::trace::ms_since_epoch(submitted)),
             wait_ms: Some(waited.as_secs_f64() * 1e3),
             gpu_ms,
+            used_lines: used.iter().filter(|&&u| u != 0).count() as u32,
             ..Round::default()
         };
         let bw = self.format.words() as usize;

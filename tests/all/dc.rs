@@ -27,6 +27,8 @@ fn sweep(g: Generator) {
     let (reference, _) = render(&gpu, &p, &camera, W, H, Settings::default());
     assert!(reference.pixels.iter().any(|px| !is_miss(px)));
     let sizes = ["1line", "1/32", "1/8", "1/2", "1/1"];
+    // Cache lines the GPU marked as used, over the fault rounds of the whole sweep.
+    let mut used_lines = 0u64;
     for n in [1u32, 2, 3, 4, 7] {
         for size in sizes {
             for map in [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru] {
@@ -80,6 +82,8 @@ fn sweep(g: Generator) {
                         r.fetched_blocks >= 1,
                         "{what}: every fault round loads a block"
                     );
+                    assert!(r.used_lines <= lines, "{what}");
+                    used_lines += u64::from(r.used_lines);
                     for f in r.faults.iter() {
                         assert_ne!(f.owner, rank, "{what}: a rank never fetches its own block");
                     }
@@ -87,6 +91,9 @@ fn sweep(g: Generator) {
             }
         }
     }
+    // Resumed rays find the blocks the rounds before them fetched: the GPU marks those lines
+    // (Lru's recency).
+    assert!(used_lines > 0, "no round found a block in a cache line");
 }
 
 #[test]
