@@ -12,8 +12,6 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-const STORES: [(&str, &str); 2] = [("Texture", "store_texture"), ("Buffer", "store_buffer")];
-
 /// Struct name -> (size, member offsets, the kernel it was first seen in).
 type Structs = BTreeMap<String, (u32, Vec<(String, u32)>, String)>;
 
@@ -34,13 +32,13 @@ fn run(dir: &std::path::Path) -> Result<(), String> {
     out.push_str("pub const KERNELS: &[KernelInfo] = &[\n");
     for file in compose::kernel_files(dir)? {
         let name = file.trim_end_matches(".wgsl");
-        for (store, store_module) in STORES {
+        for store_module in compose::STORE_MODULES {
             let composed = compose::compose(&files, &file, store_module)?;
             let module = compose::validate(&composed, &file)?;
             reflect_structs(&module, &file, &mut structs)?;
             writeln!(
                 out,
-                "    KernelInfo {{\n        name: {name:?},\n        store: Store::{store},\n        \
+                "    KernelInfo {{\n        name: {name:?},\n        store: {store_module:?},\n        \
                  source: {:?},\n        bindings: &[",
                 composed.text
             )

@@ -2,7 +2,7 @@
 //! (`shaders/shared/NAME.wgsl`), and composing it gives one WGSL text with each module once,
 //! every module before the code that imports it, and a map from each composed line back to its
 //! file and line, so that errors name the file a person edits. `#import store` is the block
-//! store of the build (`store_texture` or `store_buffer`).
+//! store module of the build (one of `STORE_MODULES`).
 //!
 //! `build.rs` composes and validates every kernel with this code (docs/ARCHITECTURE.md,
 //! Shaders), so it uses nothing of the crate but `std` and naga.
@@ -58,6 +58,10 @@ impl Files for Overlay {
         }
     }
 }
+
+/// The block store modules `#import store` may name; every kernel is composed once for each:
+/// one texture, a texture store in parts (larger than one resource may be), one buffer.
+pub const STORE_MODULES: [&str; 3] = ["store_texture", "store_texture_parts", "store_buffer"];
 
 /// The shared module file an import names.
 pub fn module_file(name: &str, store: &str) -> String {

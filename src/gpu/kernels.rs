@@ -3,7 +3,7 @@
 //! binding name, so no binding list is written by hand (docs/ARCHITECTURE.md, Shaders).
 
 use super::Gpu;
-use super::shaders::{self, BindingKind, KernelInfo, Store};
+use super::shaders::{self, BindingKind, KernelInfo};
 use crate::shading::Mode;
 
 /// One kernel's pipeline and the layouts of the groups it declares.
@@ -58,8 +58,9 @@ fn layout_entry(b: &shaders::BindingInfo) -> wgpu::BindGroupLayoutEntry {
 }
 
 impl Kernel {
-    /// Builds kernel `name` for `store`; of `constants`, it gets those it declares.
-    pub fn new(gpu: &Gpu, name: &str, store: Store, constants: &[(&'static str, f64)]) -> Kernel {
+    /// Builds kernel `name` for block store module `store`; of `constants`, it gets those it
+    /// declares.
+    pub fn new(gpu: &Gpu, name: &str, store: &str, constants: &[(&'static str, f64)]) -> Kernel {
         let info = shaders::kernel(name, store);
         let groups = info.bindings.iter().map(|b| b.group + 1).max().unwrap_or(0);
         let layouts: Vec<Option<wgpu::BindGroupLayout>> = (0..groups)
@@ -196,7 +197,7 @@ pub struct Kernels {
 impl Kernels {
     pub fn new(
         gpu: &Gpu,
-        store: Store,
+        store: &str,
         constants: &[(&'static str, f64)],
         mode: Mode,
         albedo: bool,

@@ -76,7 +76,8 @@ pub fn run_mirror(
     cases: &[MirrorCase],
 ) -> Result<Vec<MirrorResult>> {
     use wgpu::BufferUsages as U;
-    let kernel = super::kernels::Kernel::new(gpu, "mirror", super::shaders::Store::Texture, &[]);
+    let kernel =
+        super::kernels::Kernel::new(gpu, "mirror", super::shaders::Store::Texture.module(), &[]);
     let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
     let params_buf = init("params", bytemuck::bytes_of(params), U::UNIFORM);
     let input = init("mirror in", bytemuck::cast_slice(cases), U::STORAGE);

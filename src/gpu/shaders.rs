@@ -16,7 +16,8 @@ pub enum Store {
 impl Store {
     pub const ALL: [Store; 2] = [Store::Texture, Store::Buffer];
 
-    /// The shared module `#import store` names in this build.
+    /// The shared module `#import store` names for a store that fits one resource (a texture
+    /// store in parts uses `store_texture_parts`).
     pub fn module(self) -> &'static str {
         match self {
             Store::Texture => "store_texture",
@@ -46,12 +47,13 @@ pub struct BindingInfo {
     pub kind: BindingKind,
 }
 
-/// A composed kernel for one block store.
+/// A composed kernel for one block store module.
 #[derive(Clone, Copy, Debug)]
 pub struct KernelInfo {
     /// The kernel's file name without `.wgsl`; its entry point is `main`.
     pub name: &'static str,
-    pub store: Store,
+    /// The block store module it was composed with (`compose::STORE_MODULES`).
+    pub store: &'static str,
     /// The composed WGSL (shared modules first).
     pub source: &'static str,
     /// Sorted by (group, binding).
@@ -82,12 +84,12 @@ impl StructInfo {
 
 include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
 
-/// The kernel `name` composed for `store`.
-pub fn kernel(name: &str, store: Store) -> &'static KernelInfo {
+/// The kernel `name` composed with block store module `store`.
+pub fn kernel(name: &str, store: &str) -> &'static KernelInfo {
     KERNELS
         .iter()
         .find(|k| k.name == name && k.store == store)
-        .unwrap_or_else(|| panic!("no kernel named {name}"))
+        .unwrap_or_else(|| panic!("no kernel named {name} for {store}"))
 }
 
 /// The layout of WGSL struct `name`.

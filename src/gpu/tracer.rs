@@ -55,6 +55,9 @@ pub struct Settings {
     pub max_batch_rays: u32,
     /// Where the GPU keeps the blocks.
     pub store: Store,
+    /// Bytes one block texture may hold; `None`: the adapter's largest allocation. Tests set it
+    /// small so that small models span several textures.
+    pub max_texture_bytes: Option<u64>,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
 }
@@ -65,6 +68,7 @@ impl Default for Settings {
             step_budget: DEFAULT_STEP_BUDGET,
             max_batch_rays: DEFAULT_MAX_BATCH_RAYS,
             store: Store::Texture,
+            max_texture_bytes: None,
             shading: Shading::default(),
         }
     }
@@ -236,23 +240,23 @@ impl<'g> Tracer<'g> {
             resident: model.resident,
             lines,
         };
-        let store = BlockStore::new(gpu, settings.store, &rows)?;
+        let store = BlockStore::new(gpu, settings.store, &rows, settings.max_texture_bytes)?;
         settings.shading.validate()?;
-        let constants: Constants = vec![
+        let mut constants: Constants = vec![
             ("DC", if dc.is_some() { 1.0 } else { 0.0 }),
             ("NODES_PER_BLOCK", f64::from(format.nodes_per_block())),
             ("TRIS_PER_BLOCK", f64::from(format.tris_per_block())),
             ("TEXELS_PER_BLOCK", f64::from(format.texels())),
-            ("ROWS_PER_LAYER", f64::from(store.rows_per_layer())),
             (
                 "ATTRS_PER_BLOCK",
                 f64::from(format.attrs_per_block(attrs.words)),
             ),
             ("ATTR_WORDS", f64::from(attrs.words.max(1))),
         ];
+        constants.extend(store.constants());
         let colored = attrs.words > 0;
         let mode = settings.shading.mode;
-        let kernels = Kernels::new(gpu, settings.store, &constants, mode, colored);
+        let kernels = Kernels::new(gpu, store.module(), &constants, mode, colored);
         let meshes = model.meshes.infos();
         let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
         use wgpu::BufferUsages as U;
@@ -397,7 +401,7 @@ impl<'g> Tracer<'g> {
             return Some(b.as_entire_binding());
         }
         let buf = match name {
-            "blocks" => return Some(self.store.resource()),
+            "blocks" | "blocks_1" | "blocks_2" | "blocks_3" => return self.store.resource(name),
             "params" => &self.params_buf,
             "meshes" => &self.meshes_buf,
             "palette" => &self.palette_buf,
@@ -442,7 +446,7 @@ impl<'g> Tracer<'g> {
     pub fn set_shading(&mut self, shading: Shading) -> Result<()> {
         shading.validate()?;
         if shading.mode != self.settings.shading.mode {
-            let st = self.settings.store;
+            let st = self.store.module();
             let colored = self.kernels.albedo.is_some();
             self.kernels = Kernels::new(self.gpu, st, &self.constants, shading.mode, colored);
             self.bound = self.bind_kernels();
@@ -680,6 +684,21 @@ impl<'g> Tracer<'g> {
 
     pub fn settings(&self) -> Settings {
         self.settings
+    }
+
+    /// Textures the block store spans (1 for a buffer store).
+    pub fn store_parts(&self) -> u32 {
+        self.store.parts()
+    }
+
+    /// Rows of the block store: resident blocks, then cache lines.
+    pub fn store_rows(&self) -> u32 {
+        self.store.rows()
+    }
+
+    /// What holds the blocks on the GPU: "1 texture", "2 textures", "1 buffer".
+    pub fn store_description(&self) -> String {
+        self.store.describe()
     }
 
     /// The per-batch ray states after the last batch (tests inspect them).

@@ -157,3 +157,48 @@ fn batches_shrink_to_the_blocks_a_cache_holds_and_images_stay_the_same() {
         same_pixels(&reference, &second, &what);
     }
 }
+
+#[test]
+fn stores_split_over_several_textures_give_the_same_image() {
+    // An adapter bounds the bytes of one texture (lavapipe: 2 GiB), so a larger store spans up to
+    // four. Here the bound is set small enough that a small model's store spans three or four,
+    // replicated and with a cache whose lines fall in the last parts, and the image is the same.
+    let gpu = gpu();
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let basis = camera.basis(W, H);
+    let (reference, _) = render(&gpu, &p, &camera, W, H, Settings::default());
+    let caches = [
+        None,
+        Some(("1/2", CacheMap::Ize)),
+        Some(("1/8", CacheMap::Lru)),
+    ];
+    for cache in caches {
+        let o = cache.map(|(size, map)| DcOptions {
+            ranks: 3,
+            rank: 1,
+            cache: CacheSize::parse(size).unwrap(),
+            map,
+        });
+        let tracer = |s: Settings| match &o {
+            Some(o) => p.tracer_dc(&gpu, s, o).unwrap(),
+            None => p.tracer(&gpu, s).unwrap(),
+        };
+        let whole = tracer(Settings::default());
+        assert_eq!(whole.store_parts(), 1);
+        let rows = whole.store_rows();
+        drop(whole);
+        // A third of the rows a texture: three or four textures (layers hold whole rows).
+        let split = Settings {
+            max_texture_bytes: Some(u64::from(rows.div_ceil(3)) * 8192),
+            ..Settings::default()
+        };
+        let mut t = tracer(split);
+        let what = format!("{cache:?}, {rows} rows");
+        assert!((3..=4).contains(&t.store_parts()), "{what}");
+        let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        if o.is_some() {
+            assert!(stats.fetched_blocks > 0, "{what}: lines are written");
+        }
+        same_pixels(&reference, &frame, &what);
+    }
+}

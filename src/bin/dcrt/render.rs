@@ -107,14 +107,15 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
         Some(o) => {
             let m = o.memory(loaded.block_count(), loaded.format())?;
             eprintln!(
-                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}) of a {:.1} MiB \
-                 model",
+                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}; blocks in \
+                 {}) of a {:.1} MiB model",
                 o.rank,
                 o.ranks,
                 mib(m.resident_bytes),
                 mib(m.cache_bytes),
                 o.lines(loaded.block_count(), loaded.format()),
                 o.map,
+                tracer.store_description(),
                 mib(loaded.model_bytes())
             );
         }
@@ -187,7 +188,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                     stats.max_live_rounds,
                     if dc.is_some() {
                         format!(
-                            ", {} faults rounds, hit rate {:.3}, {} blocks fetched",
+                            ", {} fault rounds, hit rate {:.3}, {} blocks fetched",
                             stats.fault_rounds,
                             hit_rate(stats),
                             stats.fetched_blocks
