@@ -46,7 +46,7 @@ fn main() {
     put(p.dc_ranks); put(p.dc_rank); put(p.dc_lines); put(p.dc_map);
     put(p.dc_cache_row); put(p.dc_root_row); put(p.dc_fault_cap);
     put(p.rect_x); put(p.rect_y); put(p.rect_w); put(p.rect_h);
-    put(p.pad0); put(p.pad1); put(p.pad2); put(p.opaque_zero);
+    put(p.pad0); put(p.pad1); put(p.dc_defer); put(p.opaque_zero);
     put(p.sample); put(p.seed); put(p.flags); put(p.spp);
     put(p.attr_block0); put(p.albedo_stride); put(p.pad4); put(p.pad5);
     for (var i = 0u; i < p.pad0; i++) {

@@ -1,8 +1,11 @@
 // One trace round: every live ray runs at most `step_budget` loop iterations of closest-hit BVH
 // traversal (lavapipe silently stops a loop after 65,535 iterations, so no invocation may ever
-// come near that), then saves its state. A ray that needs a block its GPU lacks records a fault
-// and suspends where it stands; it repeats that step once the block is in the cache. Rays not
-// done are appended to the next live list.
+// come near that), then saves its state. A ray that needs a block its GPU lacks records a fault,
+// sets the entry aside in one of DEFER_SLOTS slots after its stack and goes on with what the GPU
+// holds (fault and continue); when nothing else is left, or the slots are full, it suspends
+// until one of those blocks is in the cache. Rays not done are appended to the next live list.
+// The closest hit is the nearest, and of equally near ones the lowest triangle index, so the
+// order in which faults let a ray visit its subtrees never changes the image.
 #import params
 #import ray
 #import blocks
@@ -36,6 +39,23 @@ struct Stats {
     unused2: u32,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
+
+// Stack entries set aside for absent blocks, in the last DEFER_SLOTS entries of a ray's stack
+// region (the host sizes stacks for them); 0 when replicated. Their count is in RayState.flags.
+override DEFER_SLOTS: u32 = 0u;
+const DEFER_SHIFT: u32 = 4u;
+
+fn deferred(r: RayState) -> u32 {
+    if DEFER_SLOTS == 0u {
+        return 0u;
+    }
+    return (r.flags >> DEFER_SHIFT) & 0xfu;
+}
+
+// The block an entry's node or first triangle is in.
+fn entry_block(e: vec4<u32>) -> u32 {
+    return select(tri_loc(e.x).x, node_loc(e.x).x, e.y == 0u);
+}
 
 var<workgroup> wg_steps: atomic<u32>;
 var<workgroup> wg_tris: atomic<u32>;
@@ -73,6 +93,10 @@ struct Closest {
 // done with it (shadow and occlusion rays need any hit, not the closest).
 fn take_hit(r: ptr<function, RayState>, c: ptr<function, Closest>, th: TriHit, index: u32,
             row: u32, slot: u32) -> bool {
+    // intersect returns hits up to t inclusive: an equally near one wins by the lower index.
+    if !(th.t < (*r).t || ((*r).hit != NONE && index < (*r).hit)) {
+        return false;
+    }
     (*r).t = th.t;
     (*r).hit = index;
     *c = Closest(true, row, slot, th.b);
@@ -82,6 +106,17 @@ fn take_hit(r: ptr<function, RayState>, c: ptr<function, Closest>, th: TriHit, i
         return true;
     }
     return false;
+}
+
+// Sets entry e (its block absent, its fault recorded) aside in a free slot; false when none is.
+fn set_aside(r: ptr<function, RayState>, slots: u32, e: vec4<u32>) -> bool {
+    let nd = deferred(*r);
+    if nd >= min(params.dc_defer, DEFER_SLOTS) {
+        return false;
+    }
+    stacks[slots + nd] = e;
+    (*r).flags += 1u << DEFER_SHIFT;
+    return true;
 }
 
 // The nearer of two entries first (a compare-exchange of a sorting network).
@@ -127,6 +162,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         let sh = make_shear(dir);
         let camera = (r.flags & FROM_CAMERA) != 0u;
         let base = ray_index * params.stack_size;
+        // The stack proper, then the deferred entries.
+        let cap = params.stack_size - DEFER_SLOTS;
+        let slots = base + cap;
         var iters = 0u;
         var tests = 0u;
         var suspended = false;
@@ -140,8 +178,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // few lanes take it.
         var closest = Closest(false, 0u, 0u, vec3(0.0));
         var last_tri_block = NONE;
-        // What is visited next, as a stack entry holds it (RayState.cur_index, cur_count).
+        // What is visited next, as a stack entry holds it (RayState.cur_index, cur_count), and
+        // its entry distance's bits (0, never culled, for an entry resumed from RayState).
         var cur = vec2(r.cur_index, r.cur_count);
+        var cur_t = 0u;
         // A triangle whose hit distance f32 cannot resolve (intersect's UNRESOLVED_T) ends the
         // traversal loop and is decided by resolve_hit outside it, in the order traversal met it,
         // before the loop resumes: code in the loop costs a CPU driver in every iteration.
@@ -152,8 +192,28 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         loop {
             loop {
                 if cur.y == NONE && r.sp == 0u {
-                    r.status = DONE;
-                    break;
+                    let nd = deferred(r);
+                    if nd == 0u {
+                        r.status = DONE;
+                        break;
+                    }
+                    // Only set-aside entries are left: back on the stack once one of their
+                    // blocks is here (the first one's on top), else suspend until it comes.
+                    var here = false;
+                    for (var i = 0u; i < nd; i++) {
+                        here = here || block_rows[entry_block(stacks[slots + i])] != NONE;
+                    }
+                    if !here {
+                        r.wait_block = entry_block(stacks[slots]);
+                        suspended = true;
+                        break;
+                    }
+                    for (var i = 0u; i < nd; i++) {
+                        stacks[base + i] = stacks[slots + nd - 1u - i];
+                    }
+                    r.sp = nd;
+                    r.flags &= ~(0xfu << DEFER_SHIFT);
+                    continue;
                 }
                 if iters >= params.step_budget {
                     break;
@@ -168,11 +228,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     // Visited in this same iteration.
                     cur = e.xy;
+                    cur_t = e.z;
                 }
                 if cur.y == 0u {
                     let l = node_loc(cur.x);
                     let row = locate(l.x);
-                    if row == NONE {
+                    if DC && row == NONE {
+                        if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
+                            cur = vec2(0u, NONE);
+                            continue;
+                        }
                         r.wait_block = l.x;
                         suspended = true;
                         break;
@@ -205,7 +270,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     near_first(&e1, &e2);
                     // The nearest is visited next, the others pushed farthest first.
                     let pushes = u32(e1.z != MISS) + u32(e2.z != MISS) + u32(e3.z != MISS);
-                    if r.sp + pushes > params.stack_size {
+                    if r.sp + pushes > cap {
                         r.status = OVERFLOW;
                         break;
                     }
@@ -222,6 +287,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         r.sp += 1u;
                     }
                     cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
+                    cur_t = e0.z;
                 } else {
                     // One triangle of a leaf per iteration, the rest kept as the current entry: a
                     // loop over the leaf would run, in every lane, as often as the longest leaf
@@ -230,7 +296,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     // evict the second).
                     let l = tri_loc(cur.x);
                     let row = locate(l.x);
-                    if row == NONE {
+                    if DC && row == NONE {
+                        if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
+                            cur = vec2(0u, NONE);
+                            continue;
+                        }
                         r.wait_block = l.x;
                         suspended = true;
                         break;

@@ -111,7 +111,7 @@ fn crosses(s: Sheared) -> bool {
     return !(any(e < vec3(0.0)) && any(e > vec3(0.0))) && det != 0.0;
 }
 
-// The hit in (0, tmax), NO_HIT, or UNRESOLVED_T when f32's distance cannot be trusted (then
+// The hit in (0, tmax], NO_HIT, or UNRESOLVED_T when f32's distance cannot be trusted (then
 // `resolve_hit` decides, outside the traversal loop: a CPU driver runs a branch's code whenever
 // any lane takes it, and rarely needed extended precision in the loop cost a quarter of the
 // time). Degenerate triangles (det == 0) never hit. Unless `camera` (the ray leaves no surface),
@@ -144,7 +144,7 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> TriHit {
     let first_order = 100.0 * s.delta_e < abs(det);
     // Resolved: t is proven in front of the origin and within 1.2e-4 of itself.
     if t * 1.2207031e-4 > delta_t && first_order {
-        if t >= tmax {
+        if t > tmax {
             return NO_HIT;
         }
         return TriHit(t, s.uvw / det);
@@ -157,7 +157,7 @@ fn intersect(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32) -> TriHit {
     return TriHit(UNRESOLVED_T, vec3(0.0));
 }
 
-// What `intersect` left unresolved: the hit in (0, tmax) or NO_HIT, from the distance to the
+// What `intersect` left unresolved: the hit in (0, tmax] or NO_HIT, from the distance to the
 // triangle's plane in extended precision (`plane_hit`). Flat triangles (area within rounding of
 // zero) have no plane to speak of and are not hit.
 fn resolve_hit(tri: Tri, org: vec3<f32>, sh: Shear, tmax: f32, camera: bool) -> TriHit {
@@ -210,7 +210,7 @@ fn plane_hit(tri: Tri, org: vec3<f32>, sh: Shear, b: vec3<f32>, b_err: f32, tmax
     let t_err = (num_err + abs(num) * den_err / abs(den)) * abs(sh.s.z) / abs(den)
         + gamma(12.0) * abs(t);
     let proven = t > select(t_err, 0.0, camera);
-    if !proven || t >= tmax {
+    if !proven || t > tmax {
         return NO_HIT;
     }
     return TriHit(t, b);

@@ -36,7 +36,9 @@ struct Params {
     rect_h: u32,
     pad0: u32,
     pad1: u32,
-    pad2: u32,
+    // Entries a ray may set aside for absent blocks this frame (shaders/trace.wgsl); 0: it
+    // suspends at every fault.
+    dc_defer: u32,
     // 0, unknown to the compiler (shared/compensated.wgsl).
     opaque_zero: u32,
     // Sampling: the sample index of this pass (the sampler's index), the seed, flags (JITTER,

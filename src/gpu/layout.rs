@@ -39,7 +39,8 @@ pub struct Params {
     pub rect_h: u32,
     pub pad0: u32,
     pub pad1: u32,
-    pub pad2: u32,
+    /// Set-aside slots a ray may use this frame (`Tracer::end_frame` decides).
+    pub dc_defer: u32,
     /// 0: a value the shader compiler cannot know, which hides the compensated sums of
     /// `shared/compensated.wgsl` from its algebra.
     pub opaque_zero: u32,

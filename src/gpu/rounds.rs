@@ -130,7 +130,9 @@ impl Tracer<'_> {
                 return Err(Error::Gpu(format!(
                     "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
                      stack (the model declares depth {}, the stack holds at most {MAX_STACK})",
-                    s.overflows, self.params.stack_size, self.depth
+                    s.overflows,
+                    self.stack_size(),
+                    self.depth
                 )));
             }
             enc = gpu.device.create_command_encoder(&Default::default());

@@ -86,7 +86,7 @@ fn every_member_reads_back_through_the_shader() {
         dc_cache_row: 120,
         dc_root_row: 121,
         dc_fault_cap: 122,
-        pad2: 123,
+        dc_defer: 123,
         opaque_zero: 124,
         attr_block0: 125,
         albedo_stride: 126,
@@ -217,7 +217,7 @@ fn host_structs_match_naga_layouts() {
         "dc_lines" => dc_lines, "dc_map" => dc_map, "dc_cache_row" => dc_cache_row,
         "dc_root_row" => dc_root_row, "dc_fault_cap" => dc_fault_cap, "rect_x" => rect_x,
         "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
-        "pad1" => pad1, "pad2" => pad2, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
+        "pad1" => pad1, "dc_defer" => dc_defer, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
         "flags" => flags, "spp" => spp, "attr_block0" => attr_block0,
         "albedo_stride" => albedo_stride, "pad4" => pad4, "pad5" => pad5,
     });
