@@ -170,13 +170,19 @@ impl Plan {
             for (k, cache, t) in configs {
                 let tag = format!(
                     "{name}-k{k}-{}-{t:?}",
-                    cache.as_deref().unwrap_or("repl").replace('/', "of")
+                    cache
+                        .as_deref()
+                        .unwrap_or("repl")
+                        .replace('/', "of")
+                        .replace(':', "-")
                 );
                 let stats = self.dir.join(format!("{tag}.json"));
                 let mut cmd = self.mpirun(k, t);
                 cmd.args(self.render_args(model, &tag, &stats));
                 if let Some(c) = &cache {
-                    cmd.args(["--cache", c]);
+                    // SIZE or SIZE:MAP, as `--cluster-caches` checked it.
+                    let (size, map) = c.split_once(':').unwrap_or((c, "ize"));
+                    cmd.args(["--cache", size, "--cache-map", map]);
                 }
                 run(&mut cmd, &tag)?;
                 rows.push(cluster_row(

@@ -362,7 +362,7 @@ struct BenchArgs {
     cluster: bool,
     #[arg(long, value_delimiter = ',', default_value = "2,3,4,5,6")]
     ranks: Vec<u32>,
-    /// `none` replicates.
+    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`).
     #[arg(long, value_delimiter = ',', default_value = "none,1/8")]
     cluster_caches: Vec<String>,
     #[arg(

@@ -51,9 +51,16 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         .iter()
         .map(|c| match c.as_str() {
             "none" => Ok(None),
-            other => CacheSize::parse(other).map(|_| Some(other.to_string())),
+            other => {
+                let (size, map) = other.split_once(':').unwrap_or((other, "ize"));
+                CacheSize::parse(size)?;
+                <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
+                    anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
+                })?;
+                Ok(Some(other.to_string()))
+            }
         })
-        .collect::<dcrt::Result<Vec<_>>>()?;
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let plan = Plan {
         exe: std::env::current_exe().context("the path of this dcrt")?,
         dir: dir.clone(),
