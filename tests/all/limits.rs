@@ -69,7 +69,7 @@ fn a_generator_too_large_for_memory_is_refused_with_its_size() {
 /// The bench's option combinations that cannot be measured are refused, naming the option,
 /// before any work: a reference that cannot be split into whole halves, a peer with the wrong
 /// benchmark, a soak too short for a slope, figures without a render rank, a timed frame or a
-/// valid cache.
+/// valid cache, a cluster cache with no such mapping.
 #[test]
 fn bench_refuses_options_it_cannot_measure() {
     for (args, expect) in [
@@ -102,6 +102,10 @@ fn bench_refuses_options_it_cannot_measure() {
                 "1/0",
             ],
             "--caches: 1/0",
+        ),
+        (
+            &["--cluster", "--cluster-caches", "none,1/8:fifo"],
+            "--cluster-caches 1/8:fifo: no cache mapping \"fifo\"",
         ),
     ] {
         let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];

@@ -17,8 +17,25 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
     if a.ranks.iter().any(|&k| k < 2) || a.display_ranks < 2 {
         bail!("--ranks and --display-ranks count MPI ranks: at least 2");
     }
-    let dir = std::env::temp_dir().join(format!("dcrt-bench-cluster-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let caches = a
+        .cluster_caches
+        .iter()
+        .map(|c| match c.as_str() {
+            "none" => Ok(None),
+            other => {
+                let (size, map) = other.split_once(':').unwrap_or((other, "ize"));
+                CacheSize::parse(size)?;
+                <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
+                    anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
+                })?;
+                Ok(Some(other.to_string()))
+            }
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let work =
+        WorkDir(std::env::temp_dir().join(format!("dcrt-bench-cluster-{}", std::process::id())));
+    let dir = &work.0;
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     let scenes: Vec<(String, Scene)> = match &a.scene {
         Some(p) => vec![(
             p.file_stem()
@@ -46,21 +63,6 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         );
         models.push((name.clone(), path));
     }
-    let caches = a
-        .cluster_caches
-        .iter()
-        .map(|c| match c.as_str() {
-            "none" => Ok(None),
-            other => {
-                let (size, map) = other.split_once(':').unwrap_or((other, "ize"));
-                CacheSize::parse(size)?;
-                <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
-                    anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
-                })?;
-                Ok(Some(other.to_string()))
-            }
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
     let plan = Plan {
         exe: std::env::current_exe().context("the path of this dcrt")?,
         dir: dir.clone(),
@@ -90,7 +92,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         Some((_, m)) if !a.copy_threads.is_empty() => display_plan.display(m)?,
         _ => Vec::new(),
     };
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(work);
     let all = serde_json::json!({"frame_times": rows, "display": display});
     emit(a.json, &all, |_| {
         print!("{}", table(&rows));
@@ -114,4 +116,13 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
             );
         }
     })
+}
+
+/// The bench's working directory (block files, stats, images), removed however the bench ends.
+struct WorkDir(std::path::PathBuf);
+
+impl Drop for WorkDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
