@@ -61,10 +61,9 @@ pub struct Settings {
     /// Bytes one block texture may hold; `None`: the adapter's largest allocation. Tests set it
     /// small so that small models span several textures.
     pub max_texture_bytes: Option<u64>,
-    /// With a cache: a ray sets absent blocks' entries aside and goes on with what the GPU
-    /// holds, in frames whose blocks fit the cache (`Tracer::end_frame`); false: it suspends at
-    /// every fault. Tests compare the two.
-    pub fault_and_continue: bool,
+    /// With a cache: when a ray sets absent blocks' entries aside and goes on with what the GPU
+    /// holds instead of suspending at the fault.
+    pub faults: FaultMode,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
 }
@@ -76,7 +75,7 @@ impl Default for Settings {
             max_batch_rays: DEFAULT_MAX_BATCH_RAYS,
             store: Store::Texture,
             max_texture_bytes: None,
-            fault_and_continue: true,
+            faults: FaultMode::Fit,
             shading: Shading::default(),
         }
     }
@@ -227,11 +226,26 @@ pub struct Tracer<'g> {
 /// have culled, and where the cache is short those extra fetches evict blocks other rays need
 /// (measured: at a 1/8 cache, 8-25% more fetches and no fewer rounds; at 1/1, 45% fewer rounds).
 fn defer_slots(settings: Settings, fits: bool) -> u32 {
-    if settings.fault_and_continue && fits {
-        DEFER_SLOTS
-    } else {
-        0
-    }
+    let on = match settings.faults {
+        FaultMode::Fit => fits,
+        FaultMode::Never => false,
+        FaultMode::Always => true,
+    };
+    if on { DEFER_SLOTS } else { 0 }
+}
+
+/// When a ray with a distributed cache goes on past a fault (docs/ARCHITECTURE.md, The round
+/// loop).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaultMode {
+    /// In frames whose blocks fit the cache.
+    #[default]
+    Fit,
+    /// Never: a ray suspends at every fault.
+    Never,
+    /// In every frame (where the cache is short it fetches more; for measurements).
+    Always,
 }
 
 /// What `Tracer::set_progress` installs.

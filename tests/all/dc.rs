@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::Settings;
+use dcrt::gpu::tracer::{FaultMode, Settings};
 use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
@@ -249,9 +249,9 @@ fn a_rays_faults_go_out_together() {
                 cache: CacheSize::parse("1/1").unwrap(),
                 map,
             };
-            let run = |fault_and_continue| {
+            let run = |faults| {
                 let s = Settings {
-                    fault_and_continue,
+                    faults,
                     ..Settings::default()
                 };
                 let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
@@ -260,7 +260,7 @@ fn a_rays_faults_go_out_together() {
                 let first = t.take_trace().rounds[0].faults.len();
                 (stats.fault_rounds, first)
             };
-            let ((on, first_on), (off, first_off)) = (run(true), run(false));
+            let ((on, first_on), (off, first_off)) = (run(FaultMode::Fit), run(FaultMode::Never));
             let what = format!(
                 "{g:?} {map:?}: chain {chain}; fault rounds {on}, first round's faults \
                  {first_on}; suspending at faults: {off}, {first_off}"

@@ -16,7 +16,7 @@ use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
+use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, FaultMode, Settings};
 use dcrt::output::Aov;
 use dcrt::render::DcOptions;
 use dcrt::shading::{Mode, Overrides, Sampler, Shading};
@@ -94,6 +94,10 @@ struct GpuArgs {
     /// Where the GPU keeps blocks.
     #[arg(long, value_enum, default_value_t = Store::Texture)]
     store: Store,
+    /// With a distributed cache: when a ray sets absent blocks aside and goes on with the
+    /// blocks its GPU holds, instead of suspending at the fault.
+    #[arg(long, value_enum, default_value_t = FaultMode::Fit)]
+    faults: FaultMode,
 }
 
 /// Shading options; each overrides the scene's `[render]` value when given.
@@ -448,6 +452,7 @@ fn settings(g: &GpuArgs) -> Settings {
     Settings {
         step_budget: g.step_budget,
         store: g.store,
+        faults: g.faults,
         ..Settings::default()
     }
 }

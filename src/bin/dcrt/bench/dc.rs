@@ -60,6 +60,8 @@ struct DcReport {
     ranks: u32,
     rank: u32,
     frames: u32,
+    /// `--faults`: when rays went on past a fault.
+    faults: dcrt::gpu::tracer::FaultMode,
     model_mib: f64,
     rows: Vec<DcRow>,
     memory: Vec<MemoryRow>,
@@ -217,6 +219,7 @@ pub fn run(
         ranks: a.virtual_ranks,
         rank: a.rank,
         frames: a.frames,
+        faults: a.gpu.faults,
         model_mib: mib(blocks.bytes()),
         rows,
         memory,
@@ -228,7 +231,7 @@ fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
-         {} orbit frames (the first, cold, reported apart)",
+         {} orbit frames (the first, cold, reported apart), --faults {:?}",
         report.scene,
         report.triangles,
         report.model_mib,
@@ -236,7 +239,8 @@ fn print(report: &DcReport) {
         report.height,
         report.rank,
         report.ranks,
-        report.frames
+        report.frames,
+        report.faults
     );
     let t = Table(&[
         ("config", -10),
