@@ -81,6 +81,15 @@ fn child_entry(n: Node, step: vec3<f32>, i: u32, index: u32, org: vec3<f32>, inv
     return vec4(index, select(c, 0u, c == INNER), key, 0u);
 }
 
+// How far past the closest hit a box may begin and still hold a triangle as near: a box's
+// entry distance is within a few ulps of the exact one, a resolved hit's t within 2^-13 of it
+// (intersect), so a box entered up to 2^-12 beyond the hit is visited. Culling at the hit itself
+// would drop a subtree whose equally near triangle has a lower index when a ray meets the
+// subtrees in another order (set-aside blocks): the tie rule needs every one of them tested.
+fn reach(t: f32) -> f32 {
+    return t * (1.0 + 1.0 / 4096.0);
+}
+
 // The closest hit found in a round: where its triangle is and its barycentrics.
 struct Closest {
     found: bool,
@@ -223,7 +232,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     r.sp -= 1u;
                     let e = stacks[base + r.sp];
                     // Entries farther than the closest hit found since they were pushed are culled.
-                    if !(bitcast<f32>(e.z) <= r.t) {
+                    if !(bitcast<f32>(e.z) <= reach(r.t)) {
                         continue;
                     }
                     // Visited in this same iteration.
@@ -253,16 +262,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     var ti = n.tri_base;
                     let c = (vec4(n.counts) >> vec4(0u, 8u, 16u, 24u)) & vec4(0xffu);
                     let inner = c == vec4(INNER);
-                    var e0 = child_entry(n, step, 0u, select(ti, ci, inner.x), org, inv, r.t);
+                    var e0 = child_entry(n, step, 0u, select(ti, ci, inner.x), org, inv, reach(r.t));
                     ci += u32(inner.x);
                     ti += select(c.x, 0u, inner.x);
-                    var e1 = child_entry(n, step, 1u, select(ti, ci, inner.y), org, inv, r.t);
+                    var e1 = child_entry(n, step, 1u, select(ti, ci, inner.y), org, inv, reach(r.t));
                     ci += u32(inner.y);
                     ti += select(c.y, 0u, inner.y);
-                    var e2 = child_entry(n, step, 2u, select(ti, ci, inner.z), org, inv, r.t);
+                    var e2 = child_entry(n, step, 2u, select(ti, ci, inner.z), org, inv, reach(r.t));
                     ci += u32(inner.z);
                     ti += select(c.z, 0u, inner.z);
-                    var e3 = child_entry(n, step, 3u, select(ti, ci, inner.w), org, inv, r.t);
+                    var e3 = child_entry(n, step, 3u, select(ti, ci, inner.w), org, inv, reach(r.t));
                     near_first(&e0, &e1);
                     near_first(&e2, &e3);
                     near_first(&e0, &e2);

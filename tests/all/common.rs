@@ -164,7 +164,7 @@ pub fn same_pixels(a: &Frame, b: &Frame, what: &str) {
         assert_eq!(
             bytemuck::bytes_of(p),
             bytemuck::bytes_of(q),
-            "{what}: pixel {i}"
+            "{what}: pixel {i}: {p:?} against {q:?}"
         );
     }
 }
