@@ -9,8 +9,9 @@ use std::mem::size_of;
 
 /// 8x8 tiles of rays.
 pub const TILE_RAYS: u32 = crate::mirror::tiles::TILE * crate::mirror::tiles::TILE;
-/// Bytes of one traversal stack entry: (index, count, entry distance bits, node).
-const STACK_ENTRY_BYTES: u64 = 16;
+/// Bytes of one traversal stack entry: the index, and the entry distance with the count in its
+/// low bits (trace.wgsl, pack_entry).
+const STACK_ENTRY_BYTES: u64 = 8;
 
 pub struct Batch {
     /// Rays a batch holds (whole tiles).
