@@ -190,6 +190,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var iters = 0u;
         var tests = 0u;
         var suspended = false;
+        // Suspended at a fault (not on an entry set aside earlier, which is requested anyway).
+        var wait_fault = false;
         var visits = 0u;
         var entries = 0u;
         var last_block = NONE;
@@ -254,7 +256,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
                 if cur.y == 0u {
                     let l = node_loc(cur.x);
-                    let row = locate(l.x);
+                    let row = lookup(l.x);
                     if DC && row == NONE {
                         if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
                             cur = vec2(0u, NONE);
@@ -262,6 +264,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         }
                         r.wait_block = l.x;
                         suspended = true;
+                        wait_fault = true;
                         break;
                     }
                     visits += 1u;
@@ -317,7 +320,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     // a resumed ray never needs the first block again (with one cache line it would
                     // evict the second).
                     let l = tri_loc(cur.x);
-                    let row = locate(l.x);
+                    let row = lookup(l.x);
                     if DC && row == NONE {
                         if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
                             cur = vec2(0u, NONE);
@@ -325,6 +328,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         }
                         r.wait_block = l.x;
                         suspended = true;
+                        wait_fault = true;
                         break;
                     }
                     tests += 1u;
@@ -358,6 +362,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             if th.t > 0.0 && take_hit(&r, &closest, th, pending_index, pending_row, pending_slot) {
                 cur.y = NONE;
                 break;
+            }
+        }
+        // The round's faults: the absent blocks of the entries set aside (those of earlier
+        // rounds too, renewed) and the one the ray suspended at, requested here rather than in
+        // the loop. A ray done (an any-hit ray that found one) needs none of them.
+        if DC && r.status == LIVE {
+            for (var i = 0u; i < deferred(r); i++) {
+                let b = entry_block(unpack_entry(stacks[slots + i]));
+                if block_rows[b] == NONE {
+                    request(b);
+                }
+            }
+            if wait_fault {
+                request(r.wait_block);
             }
         }
         if closest.found {
