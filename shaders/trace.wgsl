@@ -210,34 +210,22 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // traversal loop and is decided by resolve_hit outside it, in the order traversal met it,
         // before the loop resumes: code in the loop costs a CPU driver in every iteration.
         var pending = false;
+        // Set-aside entries to put back on the stack, or the block of a fault, when the loop
+        // stops for them.
+        var restore = false;
+        var fault_block = NONE;
         var pending_row = 0u;
         var pending_slot = 0u;
         var pending_index = 0u;
         loop {
             loop {
                 if cur.y == NONE && r.sp == 0u {
-                    let nd = deferred(r);
-                    if nd == 0u {
+                    if deferred(r) == 0u {
                         r.status = DONE;
-                        break;
+                    } else {
+                        restore = true;
                     }
-                    // Only set-aside entries are left: back on the stack once one of their
-                    // blocks is here (the first one's on top), else suspend until it comes.
-                    var here = false;
-                    for (var i = 0u; i < nd; i++) {
-                        here = here || block_rows[entry_block(unpack_entry(stacks[slots + i]))] != NONE;
-                    }
-                    if !here {
-                        r.wait_block = entry_block(unpack_entry(stacks[slots]));
-                        suspended = true;
-                        break;
-                    }
-                    for (var i = 0u; i < nd; i++) {
-                        stacks[base + i] = stacks[slots + nd - 1u - i];
-                    }
-                    r.sp = nd;
-                    r.flags &= ~(0xfu << DEFER_SHIFT);
-                    continue;
+                    break;
                 }
                 if iters >= params.step_budget {
                     break;
@@ -258,13 +246,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     let l = node_loc(cur.x);
                     let row = lookup(l.x);
                     if DC && row == NONE {
-                        if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
-                            cur = vec2(0u, NONE);
-                            continue;
-                        }
-                        r.wait_block = l.x;
-                        suspended = true;
-                        wait_fault = true;
+                        fault_block = l.x;
                         break;
                     }
                     visits += 1u;
@@ -322,13 +304,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     let l = tri_loc(cur.x);
                     let row = lookup(l.x);
                     if DC && row == NONE {
-                        if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
-                            cur = vec2(0u, NONE);
-                            continue;
-                        }
-                        r.wait_block = l.x;
-                        suspended = true;
-                        wait_fault = true;
+                        fault_block = l.x;
                         break;
                     }
                     tests += 1u;
@@ -353,6 +329,42 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                         break;
                     }
                 }
+            }
+            // Faults and set-aside entries are handled here, between runs of the loop: code in
+            // the loop costs a CPU driver in every iteration.
+            if restore {
+                restore = false;
+                // Only set-aside entries are left: back on the stack once one of their blocks is
+                // here (the first one's on top), else suspend until it comes.
+                let nd = deferred(r);
+                var here = false;
+                for (var i = 0u; i < nd; i++) {
+                    here = here || block_rows[entry_block(unpack_entry(stacks[slots + i]))] != NONE;
+                }
+                if !here {
+                    r.wait_block = entry_block(unpack_entry(stacks[slots]));
+                    suspended = true;
+                    break;
+                }
+                for (var i = 0u; i < nd; i++) {
+                    stacks[base + i] = stacks[slots + nd - 1u - i];
+                }
+                r.sp = nd;
+                r.flags &= ~(0xfu << DEFER_SHIFT);
+                continue;
+            }
+            if DC && fault_block != NONE {
+                let k = fault_block;
+                fault_block = NONE;
+                // The current entry's block is absent: set it aside and go on, or suspend.
+                if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
+                    cur = vec2(0u, NONE);
+                    continue;
+                }
+                r.wait_block = k;
+                suspended = true;
+                wait_fault = true;
+                break;
             }
             if !pending {
                 break;
