@@ -214,6 +214,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // stops for them.
         var restore = false;
         var fault_block = NONE;
+        // Which set-aside slots this round filled: their blocks are requested after the loop.
+        var set_aside_now = 0u;
         var pending_row = 0u;
         var pending_slot = 0u;
         var pending_index = 0u;
@@ -351,6 +353,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
                 r.sp = nd;
                 r.flags &= ~(0xfu << DEFER_SHIFT);
+                set_aside_now = 0u;
                 continue;
             }
             if DC && fault_block != NONE {
@@ -358,6 +361,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 fault_block = NONE;
                 // The current entry's block is absent: set it aside and go on, or suspend.
                 if set_aside(&r, slots, vec4(cur, cur_t, 0u)) {
+                    set_aside_now |= 1u << (deferred(r) - 1u);
                     cur = vec2(0u, NONE);
                     continue;
                 }
@@ -376,14 +380,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 break;
             }
         }
-        // The round's faults: the absent blocks of the entries set aside (those of earlier
-        // rounds too, renewed) and the one the ray suspended at, requested here rather than in
-        // the loop. A ray done (an any-hit ray that found one) needs none of them.
+        // The round's faults, requested here rather than in the loop: the blocks of the entries
+        // set aside in this round and the one the ray suspended at. (Renewing older set-aside
+        // entries every round made direct-mapped caches fetch twice as much: blocks that share a
+        // line evicted each other while their rays were busy elsewhere.) A ray done (an any-hit
+        // ray that found one) needs none of them.
         if DC && r.status == LIVE {
             for (var i = 0u; i < deferred(r); i++) {
-                let b = entry_block(unpack_entry(stacks[slots + i]));
-                if block_rows[b] == NONE {
-                    request(b);
+                if ((set_aside_now >> i) & 1u) != 0u {
+                    request(entry_block(unpack_entry(stacks[slots + i])));
                 }
             }
             if wait_fault {
