@@ -381,10 +381,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
         }
         // The round's faults, requested here rather than in the loop: the blocks of the entries
-        // set aside in this round and the one the ray suspended at. (Renewing older set-aside
-        // entries every round made direct-mapped caches fetch twice as much: blocks that share a
-        // line evicted each other while their rays were busy elsewhere.) A ray done (an any-hit
-        // ray that found one) needs none of them.
+        // set aside in this round and the one the ray suspended at, as a lookup inside the loop
+        // would have requested them. A ray done (an any-hit ray that found one) needs none.
         if DC && r.status == LIVE {
             for (var i = 0u; i < deferred(r); i++) {
                 if ((set_aside_now >> i) & 1u) != 0u {
