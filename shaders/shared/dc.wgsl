@@ -21,11 +21,9 @@ struct Faults {
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
-// Per block, nonzero once a ray of the frame looked it up through the cache: the host counts the
-// frame's distinct borrowed blocks from it. A plain store: racing writers write the same value.
-@group(0) @binding(8) var<storage, read_write> touched: array<u32>;
 // Per cache line, nonzero once a ray of the round found its block there: the host's recency for
-// the Lru mapping. A plain store, as `touched`.
+// the Lru mapping, and with the fault list the frame's distinct borrowed blocks. A plain store:
+// racing writers write the same value.
 @group(0) @binding(9) var<storage, read_write> line_used: array<u32>;
 
 // Per invocation, summed into Stats by the trace kernel.
@@ -65,7 +63,6 @@ fn lookup(k: u32) -> u32 {
         return row;  // owned, or the replicated root
     }
     dc_lookups += 1u;
-    touched[k] = 1u;
     if row != NONE {
         dc_hits += 1u;
         line_used[row - params.dc_cache_row] = 1u;

@@ -85,7 +85,7 @@ pub fn run_mirror(
     let out = gpu.buffer("mirror out", bytes, U::STORAGE | U::COPY_SRC);
     // The cache's tables, one buffer each (a binding may not share a writable buffer):
     // `cache_line` reads only `params`.
-    let unused: Vec<wgpu::Buffer> = (0..6)
+    let unused: Vec<wgpu::Buffer> = (0..5)
         .map(|_| gpu.buffer("unused", 32, U::STORAGE))
         .collect();
     let palette = init(
@@ -101,8 +101,7 @@ pub fn run_mirror(
         "faults" => Some(unused[1].as_entire_binding()),
         "requested" => Some(unused[2].as_entire_binding()),
         "waiters" => Some(unused[3].as_entire_binding()),
-        "touched" => Some(unused[4].as_entire_binding()),
-        "line_used" => Some(unused[5].as_entire_binding()),
+        "line_used" => Some(unused[4].as_entire_binding()),
         "palette" => Some(palette.as_entire_binding()),
         _ => None,
     });

@@ -193,14 +193,15 @@ impl Tracer<'_> {
             let waited = submitted.elapsed();
             let header: FaultHeader =
                 bytemuck::pod_read_unaligned(&faults[..size_of::<FaultHeader>()]);
+            let when = (submitted, waited, None);
             if header.count == 0 {
-                return Ok(());
+                // Nothing to load; this counts the blocks the dispatch found in lines.
+                return self.serve_faults(&faults, &waiters, 0, round, when, stats);
             }
             let waiting: u32 =
                 bytemuck::pod_collect_to_vec::<u8, u32>(&waiters[..wait_bytes as usize])
                     .iter()
                     .sum();
-            let when = (submitted, waited, None);
             self.serve_faults(&faults, &waiters, waiting, round, when, stats)?;
             enc = gpu.device.create_command_encoder(&Default::default());
         }
@@ -261,13 +262,22 @@ impl Tracer<'_> {
         let head = size_of::<FaultHeader>();
         let header: FaultHeader = bytemuck::pod_read_unaligned(&faults[..head]);
         let n = header.count.min(cap) as usize;
+        let list: Vec<u32> = bytemuck::pod_collect_to_vec(&faults[head..head + 4 * n]);
+        let lines = dc.policy.lines() as usize;
+        let used: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[4 * lines..8 * lines]);
+        // The frame's distinct borrowed blocks: those found in a line and those faulted on,
+        // counted here (before the lines change) rather than marked by the GPU at every lookup.
+        let in_lines = used.iter().enumerate().filter(|(_, u)| **u != 0);
+        for block in in_lines.filter_map(|(line, _)| dc.policy.tag(line as u32)) {
+            dc.looked_up[block as usize] = true;
+        }
+        for &block in &list {
+            dc.looked_up[block as usize] = true;
+        }
         if n == 0 {
             return Ok(());
         }
-        let list: Vec<u32> = bytemuck::pod_collect_to_vec(&faults[head..head + 4 * n]);
-        let lines = dc.policy.lines() as usize;
         let waiting: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[..4 * lines]);
-        let used: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[4 * lines..8 * lines]);
         dc.policy.mark_used(&used);
         let plan = dc.policy.plan_round(&list, &waiting);
         let mut rec = Round {

@@ -160,6 +160,9 @@ pub(super) struct Dc {
     pub policy: CachePolicy,
     pub source: Box<dyn BlockSource>,
     pub trace: FrameTrace,
+    /// The borrowed blocks the frame has looked up so far: the blocks of the lines its rounds
+    /// used and the blocks they faulted on (`serve_faults`).
+    pub looked_up: Vec<bool>,
 }
 
 /// The distributed cache's GPU buffers (small placeholders, never read, when replicated).
@@ -168,7 +171,6 @@ pub(super) struct DcBuffers {
     pub faults: wgpu::Buffer,
     pub requested: wgpu::Buffer,
     pub waiters: wgpu::Buffer,
-    pub touched: wgpu::Buffer,
     pub line_used: wgpu::Buffer,
 }
 
@@ -324,7 +326,6 @@ impl<'g> Tracer<'g> {
                     faults: p(),
                     requested: p(),
                     waiters: p(),
-                    touched: p(),
                     line_used: p(),
                 };
                 (None, bufs)
@@ -374,11 +375,6 @@ impl<'g> Tracer<'g> {
                         4 * u64::from(d.lines),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
-                    touched: gpu.buffer(
-                        "touched",
-                        4 * u64::from(blocks),
-                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
-                    ),
                     line_used: gpu.buffer(
                         "line used",
                         4 * u64::from(d.lines),
@@ -389,6 +385,7 @@ impl<'g> Tracer<'g> {
                     policy,
                     source: d.source,
                     trace: FrameTrace::default(),
+                    looked_up: vec![false; blocks as usize],
                 };
                 (Some(dc), bufs)
             }
@@ -451,7 +448,6 @@ impl<'g> Tracer<'g> {
             "faults" => &self.dc_bufs.faults,
             "requested" => &self.dc_bufs.requested,
             "waiters" => &self.dc_bufs.waiters,
-            "touched" => &self.dc_bufs.touched,
             "line_used" => &self.dc_bufs.line_used,
             _ => return None,
         };
@@ -534,9 +530,7 @@ impl<'g> Tracer<'g> {
     pub fn begin_frame(&mut self) -> FrameStats {
         if let Some(dc) = self.dc.as_mut() {
             dc.trace = FrameTrace::default();
-            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            enc.clear_buffer(&self.dc_bufs.touched, 0, None);
-            self.gpu.queue.submit([enc.finish()]);
+            dc.looked_up.fill(false);
         }
         self.frame_start = Instant::now();
         FrameStats::default()
@@ -651,15 +645,12 @@ impl<'g> Tracer<'g> {
     }
 
     /// Ends a frame begun with `begin_frame`: its wall time, and with a cache the distinct
-    /// borrowed blocks it touched (read after the clock stops). (The frame loop,
+    /// borrowed blocks it looked up. (The frame loop,
     /// `render::frames`, makes the trace's summary from the stats.)
     pub fn end_frame(&mut self, stats: &mut FrameStats) -> Result<()> {
         stats.seconds = self.frame_start.elapsed().as_secs_f64();
-        if self.dc.is_some() {
-            let b = &self.dc_bufs.touched;
-            let marks = self.gpu.read_buffer(b, 0, b.size())?;
-            let marks: Vec<u32> = bytemuck::pod_collect_to_vec(&marks);
-            stats.distinct_blocks = marks.iter().filter(|&&m| m != 0).count() as u64;
+        if let Some(dc) = &self.dc {
+            stats.distinct_blocks = dc.looked_up.iter().filter(|&&m| m).count() as u64;
             let lines = self
                 .dc
                 .as_ref()
