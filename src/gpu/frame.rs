@@ -38,6 +38,8 @@ pub struct FrameStats {
     pub upload_seconds: f64,
     /// Rounds that had faults.
     pub fault_rounds: u32,
+    /// Rounds in which more than one batch was in flight (`Settings::overlap_batches`).
+    pub shared_rounds: u32,
     /// Inner-node visits and node-block entries (a visit in another block than the previous).
     pub node_visits: u64,
     pub block_entries: u64,

@@ -5,10 +5,11 @@
 //! the block source fetches, the store and the row table are updated) before the next round;
 //! without one, several rounds go in one submission.
 
-use super::batch::fault_bytes;
+use super::batch::{Batch, TILE_RAYS, fault_bytes};
+use super::frame::Rect;
 use super::kernels::Dispatch;
-use super::layout::{FaultHeader, RoundReadback};
-use super::tracer::{FrameStats, Gen, MAX_STACK, Tracer};
+use super::layout::{FaultHeader, Pixel, RoundReadback, Stats};
+use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Tracer};
 use crate::dc::trace::Round;
 use crate::error::{Error, Result};
 use std::mem::{offset_of, size_of};
@@ -31,35 +32,72 @@ impl Tracer<'_> {
     /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
     /// Returns how many rays entered traversal.
     pub(super) fn trace_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
-        let gpu = self.gpu;
-        gpu.write(&self.params_buf, &self.params);
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        {
-            let b = &self.batch;
-            for c in &b.counters {
-                enc.clear_buffer(c, 0, None);
-            }
-            enc.clear_buffer(&b.stats, 0, None);
-            self.clear_faults(&mut enc);
-            let k = &self.kernels;
-            match (gen_, &k.spawn, &self.bound.spawn) {
-                (Gen::Secondary { fan }, Some(spawn), Some(bound)) => {
-                    let groups =
-                        Dispatch::Direct((self.params.batch_rays * fan).div_ceil(WORKGROUP));
-                    spawn.dispatch(&mut enc, bound, groups, None);
-                }
-                _ => {
-                    let groups = Dispatch::Direct(self.params.batch_rays.div_ceil(WORKGROUP));
-                    k.raygen
-                        .dispatch(&mut enc, &self.bound.raygen, groups, None);
-                }
-            }
-            k.args
-                .dispatch(&mut enc, &self.bound.args[0], Dispatch::Direct(1), None);
-            let (at, _) = member!(started, u32);
-            enc.copy_buffer_to_buffer(&b.counters[0], 0, &b.readback, at, 4);
-        }
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        self.clear_faults(&mut enc);
+        self.record_start(&mut enc, 0, gen_);
         self.run_rounds(enc, stats)
+    }
+
+    /// The batch buffers, parameter buffer and bind groups of lane `l`: 0 is the current lane,
+    /// 1.. the spares (`Tracer::swap_lanes`).
+    fn lane(&self, l: usize) -> (&Batch, &wgpu::Buffer, &BoundKernels) {
+        match l.checked_sub(1).and_then(|i| self.spares.get(i)) {
+            Some(s) => (&s.batch, &s.params_buf, &s.bound),
+            None => (&self.batch, &self.params_buf, &self.bound),
+        }
+    }
+
+    /// Starts a batch in lane `l`: writes `Params` into its buffer, clears its counters and
+    /// stats, and records ray generation (or a wave's spawn) into list 0, `args` on counter 0 and
+    /// the copy of the started count into the lane's read-back.
+    fn record_start(&self, enc: &mut wgpu::CommandEncoder, l: usize, gen_: Gen) {
+        let (b, params_buf, bound) = self.lane(l);
+        self.gpu.write(params_buf, &self.params);
+        for c in &b.counters {
+            enc.clear_buffer(c, 0, None);
+        }
+        enc.clear_buffer(&b.stats, 0, None);
+        let k = &self.kernels;
+        match (gen_, &k.spawn, &bound.spawn) {
+            (Gen::Secondary { fan }, Some(spawn), Some(sb)) => {
+                let groups = Dispatch::Direct((self.params.batch_rays * fan).div_ceil(WORKGROUP));
+                spawn.dispatch(enc, sb, groups, None);
+            }
+            _ => {
+                let groups = Dispatch::Direct(self.params.batch_rays.div_ceil(WORKGROUP));
+                k.raygen.dispatch(enc, &bound.raygen, groups, None);
+            }
+        }
+        k.args
+            .dispatch(enc, &bound.args[0], Dispatch::Direct(1), None);
+        let (at, _) = member!(started, u32);
+        enc.copy_buffer_to_buffer(&b.counters[0], 0, &b.readback, at, 4);
+    }
+
+    /// Records one round of lane `l` (its rays in list `cur`) and the copies of the new live
+    /// count and the stats into the lane's read-back; timestamps as `stamps` says. Returns the
+    /// list the next round reads.
+    fn record_round(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        l: usize,
+        cur: usize,
+        (first, last): (bool, bool),
+    ) -> usize {
+        let (b, _, bound) = self.lane(l);
+        let k = &self.kernels;
+        let o = 1 - cur;
+        let ind = Dispatch::Indirect(&b.counters[cur]);
+        k.trace
+            .dispatch(enc, &bound.trace[cur], ind, self.stamps(first, false));
+        let groups = Dispatch::Direct(1);
+        k.args
+            .dispatch(enc, &bound.args[o], groups, self.stamps(false, last));
+        let (at, size) = member!(counter, super::layout::Counter);
+        enc.copy_buffer_to_buffer(&b.counters[o], 0, &b.readback, at, size);
+        let (at, size) = member!(stats, super::layout::Stats);
+        enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, at, size);
+        o
     }
 
     /// Trace rounds until no ray is live, starting from the live list and counter 0 that `enc`
@@ -78,24 +116,10 @@ impl Tracer<'_> {
         let mut per_check = if self.dc.is_some() { 1 } else { 2u32 };
         let mut live_rounds = 0u32;
         loop {
-            let b = &self.batch;
-            let k = &self.kernels;
             for i in 0..per_check {
-                let o = 1 - cur;
-                let ind = Dispatch::Indirect(&b.counters[cur]);
-                let (first, last) = (i == 0, i + 1 == per_check);
-                let trace = &self.bound.trace[cur];
-                k.trace
-                    .dispatch(&mut enc, trace, ind, self.stamps(first, false));
-                let args = &self.bound.args[o];
-                k.args.dispatch(
-                    &mut enc,
-                    args,
-                    Dispatch::Direct(1),
-                    self.stamps(false, last),
-                );
-                cur = o;
+                cur = self.record_round(&mut enc, 0, cur, (i == 0, i + 1 == per_check));
             }
+            let b = &self.batch;
             if let Some((q, resolve)) = &b.timestamps {
                 let (at, size) = member!(timestamps, [u64; 2]);
                 enc.resolve_query_set(q, 0..2, resolve, 0);
@@ -103,10 +127,6 @@ impl Tracer<'_> {
             }
             stats.rounds += per_check;
             live_rounds += per_check;
-            let (at, size) = member!(counter, super::layout::Counter);
-            enc.copy_buffer_to_buffer(&b.counters[cur], 0, &b.readback, at, size);
-            let (at, size) = member!(stats, super::layout::Stats);
-            enc.copy_buffer_to_buffer(&b.stats, 0, &b.readback, at, size);
             self.copy_faults(&mut enc);
             let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
@@ -126,15 +146,7 @@ impl Tracer<'_> {
                 stats.gpu_seconds += secs;
                 gpu_ms = Some(secs * 1e3);
             }
-            if s.overflows > 0 {
-                return Err(Error::Gpu(format!(
-                    "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry \
-                     stack (the model declares depth {}, the stack holds at most {MAX_STACK})",
-                    s.overflows,
-                    self.stack_size(),
-                    self.depth
-                )));
-            }
+            self.check_overflows(&s)?;
             enc = gpu.device.create_command_encoder(&Default::default());
             if self.dc.is_some() {
                 let faults = gpu.map_read(&self.batch.fault_readback)?;
@@ -144,21 +156,160 @@ impl Tracer<'_> {
                 self.clear_faults(&mut enc);
             }
             if r.counter.count == 0 {
-                stats.steps += u64::from(s.steps);
-                stats.tri_tests += u64::from(s.tri_tests);
-                stats.lookups += u64::from(s.lookups);
-                stats.hits += u64::from(s.hits);
-                stats.misses += u64::from(s.misses);
-                stats.node_visits += u64::from(s.node_visits);
-                stats.block_entries += u64::from(s.block_entries);
-                stats.tri_block_entries += u64::from(s.tri_block_entries);
-                stats.max_live_rounds = stats.max_live_rounds.max(live_rounds);
+                add_batch_stats(stats, &s, live_rounds);
                 return Ok(started.unwrap_or(0));
             }
             if self.dc.is_none() {
                 per_check = (per_check * 2).min(16);
             }
         }
+    }
+
+    /// A stack overflow in any ray of a round is an error naming the BVH depth.
+    fn check_overflows(&self, s: &Stats) -> Result<()> {
+        if s.overflows == 0 {
+            return Ok(());
+        }
+        Err(Error::Gpu(format!(
+            "traversal stack overflow in {} rays: the BVH is deeper than the {}-entry stack (the \
+             model declares depth {}, the stack holds at most {MAX_STACK})",
+            s.overflows,
+            self.stack_size(),
+            self.depth
+        )))
+    }
+
+    /// Traces and shades the primary rays of `tiles` tiles of `rect` in batches of `per_batch`
+    /// tiles, two batches at a time where their rounds overlap (docs/ARCHITECTURE.md,
+    /// Overlapping batches): when the live rays of every batch in flight are down to a
+    /// `TAIL_SHARE`th of those it started with, the next batch starts in the free lane, and each
+    /// round dispatches `trace` in both lanes and serves their faults together. A batch whose
+    /// rays are all done is resolved, shaded and read back in its lane. `Params` holds the
+    /// frame's and the sample's values; one pass per batch is reported to the progress callback.
+    pub(super) fn render_overlapped(
+        &mut self,
+        (tiles, per_batch, rect): (u32, u32, Rect),
+        pixels: &mut [Pixel],
+        passes: u64,
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        let gpu = self.gpu;
+        // The batch in each lane: (first tile, tiles, list its live rays are in, rays it
+        // started with once known, live rays after its last round, rounds).
+        let mut runs: Vec<Option<LaneRun>> = (0..=self.spares.len()).map(|_| None).collect();
+        let mut next = 0;
+        let mut passed = 0;
+        let mut round = 0;
+        // Lines the last round used: a new batch starts only while those in flight leave at
+        // least half the cache free.
+        let mut used_lines = 0;
+        let lines = self.dc.as_ref().map_or(0, |dc| dc.policy.lines());
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        self.clear_faults(&mut enc);
+        while next < tiles || runs.iter().any(Option::is_some) {
+            let t = Instant::now();
+            let tails = runs.iter().flatten().all(LaneRun::in_tail) && used_lines * 2 <= lines;
+            if let (true, true, Some(l)) =
+                (next < tiles, tails, runs.iter().position(Option::is_none))
+            {
+                let n_tiles = per_batch.min(tiles - next);
+                self.params.first_tile = next;
+                self.params.batch_rays = n_tiles * TILE_RAYS;
+                self.record_start(&mut enc, l, Gen::Primary);
+                runs[l] = Some(LaneRun::new(next, n_tiles));
+                next += n_tiles;
+            }
+            let active: Vec<usize> = (0..runs.len()).filter(|&l| runs[l].is_some()).collect();
+            for (i, &l) in active.iter().enumerate() {
+                let run = runs[l].as_mut().expect("an active lane has a batch");
+                let ends = (i == 0, i + 1 == active.len());
+                run.list = self.record_round(&mut enc, l, run.list, ends);
+                run.rounds += 1;
+            }
+            // The timestamps (lane 0's queries) go into the first active lane's read-back.
+            if let (Some((q, resolve)), Some(&l)) = (&self.batch.timestamps, active.first()) {
+                let (at, size) = member!(timestamps, [u64; 2]);
+                enc.resolve_query_set(q, 0..2, resolve, 0);
+                enc.copy_buffer_to_buffer(resolve, 0, &self.lane(l).0.readback, at, size);
+            }
+            self.copy_faults(&mut enc);
+            let submitted = Instant::now();
+            gpu.queue.submit([enc.finish()]);
+            round += 1;
+            stats.rounds += active.len() as u32;
+            stats.shared_rounds += u32::from(active.len() > 1);
+            let mut live = 0;
+            let mut gpu_ms = None;
+            let mut done = Vec::new();
+            for &l in &active {
+                let data = gpu.map_read(&self.lane(l).0.readback)?;
+                let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
+                self.check_overflows(&r.stats)?;
+                if Some(&l) == active.first() && self.batch.timestamps.is_some() {
+                    let period = f64::from(gpu.queue.get_timestamp_period());
+                    let t = r.timestamps;
+                    let secs = t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
+                    stats.gpu_seconds += secs;
+                    gpu_ms = Some(secs * 1e3);
+                }
+                let run = runs[l].as_mut().expect("an active lane has a batch");
+                run.started.get_or_insert(r.started);
+                run.live = r.counter.count;
+                live += run.live;
+                if run.live == 0 {
+                    add_batch_stats(stats, &r.stats, run.rounds);
+                    stats.traced_rays += u64::from(run.started.unwrap_or(0));
+                    done.push(l);
+                }
+            }
+            let waited = submitted.elapsed();
+            let faults = gpu.map_read(&self.batch.fault_readback)?;
+            let waiters = gpu.map_read(&self.batch.waiter_readback)?;
+            let used: &[u8] = &waiters[4 * lines as usize..8 * lines as usize];
+            used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
+            self.serve_faults(
+                &faults,
+                &waiters,
+                live,
+                round,
+                (submitted, waited, gpu_ms),
+                stats,
+            )?;
+            stats.trace_seconds += t.elapsed().as_secs_f64();
+            for l in done {
+                let t = Instant::now();
+                let run = runs[l].take().expect("a finished lane had a batch");
+                self.swap_lanes(l);
+                self.params.first_tile = run.first;
+                self.params.batch_rays = run.tiles * TILE_RAYS;
+                let shaded = self.shade_batch(run, rect, pixels, stats);
+                self.swap_lanes(l);
+                shaded?;
+                stats.shade_seconds += t.elapsed().as_secs_f64();
+                passed += 1;
+                if let Some(p) = self.progress.as_mut() {
+                    p(passed, passes);
+                }
+            }
+            enc = gpu.device.create_command_encoder(&Default::default());
+            self.clear_faults(&mut enc);
+        }
+        Ok(())
+    }
+
+    /// Resolves albedos, shades and reads back the current lane's traced batch.
+    fn shade_batch(
+        &mut self,
+        run: LaneRun,
+        rect: Rect,
+        pixels: &mut [Pixel],
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        self.resolve_albedos(stats)?;
+        self.run(&self.kernels.shade, &self.bound.shade);
+        self.read_pixels(run.first, run.tiles, rect, 1, pixels)?;
+        stats.batches += 1;
+        Ok(())
     }
 
     /// Colour by data: the albedo of every hit on a mesh coloured by data, from the attribute
@@ -322,5 +473,54 @@ impl Tracer<'_> {
         stats.fault_rounds += 1;
         dc.trace.rounds.push(rec);
         Ok(())
+    }
+}
+
+/// A batch's statistics into the frame's, once its last ray is done after `rounds` rounds.
+fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
+    stats.steps += u64::from(s.steps);
+    stats.tri_tests += u64::from(s.tri_tests);
+    stats.lookups += u64::from(s.lookups);
+    stats.hits += u64::from(s.hits);
+    stats.misses += u64::from(s.misses);
+    stats.node_visits += u64::from(s.node_visits);
+    stats.block_entries += u64::from(s.block_entries);
+    stats.tri_block_entries += u64::from(s.tri_block_entries);
+    stats.max_live_rounds = stats.max_live_rounds.max(rounds);
+}
+
+/// The next batch starts when every batch in flight is down to this share of its rays (1/16):
+/// the last rounds of a batch carry few rays, each climbing its own chain of absent blocks.
+const TAIL_SHARE: u32 = 16;
+
+/// A batch in flight in one lane (`Tracer::render_overlapped`).
+struct LaneRun {
+    /// Its first tile and tile count.
+    first: u32,
+    tiles: u32,
+    /// The live list its next round reads.
+    list: usize,
+    /// The rays it started with (known after its first round) and those still live.
+    started: Option<u32>,
+    live: u32,
+    rounds: u32,
+}
+
+impl LaneRun {
+    fn new(first: u32, tiles: u32) -> LaneRun {
+        LaneRun {
+            first,
+            tiles,
+            list: 0,
+            started: None,
+            live: 0,
+            rounds: 0,
+        }
+    }
+
+    /// Whether the batch is down to its last rays.
+    fn in_tail(&self) -> bool {
+        self.started
+            .is_some_and(|s| u64::from(self.live) * u64::from(TAIL_SHARE) <= u64::from(s))
     }
 }

@@ -64,6 +64,9 @@ pub struct Settings {
     /// With a cache: when a ray sets absent blocks' entries aside and goes on with what the GPU
     /// holds instead of suspending at the fault.
     pub faults: FaultMode,
+    /// With a cache: start the next batch in a second set of batch buffers while the last rays
+    /// of the current one still wait for blocks, so that their fault rounds are shared.
+    pub overlap_batches: bool,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
 }
@@ -76,6 +79,7 @@ impl Default for Settings {
             store: Store::Texture,
             max_texture_bytes: None,
             faults: FaultMode::Fit,
+            overlap_batches: true,
             shading: Shading::default(),
         }
     }
@@ -193,6 +197,19 @@ pub(super) struct BoundKernels {
     pub albedo: Option<Bound>,
 }
 
+/// A set of batch buffers with the parameters and bind groups of the batch it holds. With a
+/// cache a tracer has a second, spare lane: the next batch starts there while the current one's
+/// last rays still wait for blocks (docs/ARCHITECTURE.md, Overlapping batches).
+pub(super) struct Lane {
+    pub batch: Batch,
+    pub params_buf: wgpu::Buffer,
+    pub bound: BoundKernels,
+}
+
+/// Lanes besides the current one with a cache: a batch's last rays may climb chains of absent
+/// blocks for many rounds, so two batches' tails can be in flight when the next starts.
+const SPARE_LANES: usize = 2;
+
 /// Pipeline constants fixed for a model (block addressing, DC).
 type Constants = Vec<(&'static str, f64)>;
 
@@ -212,15 +229,21 @@ pub struct Tracer<'g> {
     pub(super) format: Format,
     pub(super) dc: Option<Dc>,
     pub(super) dc_bufs: DcBuffers,
+    /// With a cache, more lanes of batch buffers (`Settings::overlap_batches`).
+    pub(super) spares: Vec<Lane>,
     frame_start: Instant,
     /// The BVH depth the model declared (the stack holds `min(3 depth, MAX_STACK)` entries).
     pub(super) depth: u32,
     constants: Constants,
     /// Called after each sample pass of a batch with (passes done, passes in the rectangle).
-    progress: Option<Progress>,
+    pub(super) progress: Option<Progress>,
     /// With a cache, the pixels a batch may hold so that its blocks fit the cache, from the last
     /// frame's distinct blocks (`None`: they fit, or no frame has ended yet).
     fit_pixels: Option<u32>,
+    /// With a cache, whether a batch's blocks are known to fit it: the cache holds every
+    /// borrowed block, or a frame has ended and sized `fit_pixels`. Only then do batches overlap:
+    /// two batches too big for the cache evict each other's blocks.
+    batches_fit: bool,
 }
 
 /// Set-aside slots a ray may use in a frame (`Params::dc_defer`). Only when the frame's blocks fit
@@ -234,6 +257,18 @@ fn defer_slots(settings: Settings, fits: bool) -> u32 {
         FaultMode::Always => true,
     };
     if on { DEFER_SLOTS } else { 0 }
+}
+
+/// `Params::flags` for sample `s` (counted from the rectangle's first) of a shading setup.
+fn sample_flags(sh: Shading, basis: &CameraBasis, s: u32) -> u32 {
+    (if sh.spp > 1 { flags::JITTER } else { 0 })
+        | if sh.cull { flags::CULL } else { 0 }
+        | if s == 0 { flags::FIRST_SAMPLE } else { 0 }
+        | match sh.sampler {
+            Sampler::Sobol => 0,
+            Sampler::Independent => flags::SAMPLER_INDEPENDENT,
+        }
+        | if basis.parallel { flags::PARALLEL } else { 0 }
 }
 
 /// When a ray with a distributed cache goes on past a fault (docs/ARCHITECTURE.md, The round
@@ -317,7 +352,7 @@ impl<'g> Tracer<'g> {
             albedo_stride: 1,
             ..Params::default()
         };
-        let (dc, dc_bufs) = match dc {
+        let (dc, dc_bufs, fits) = match dc {
             None => {
                 // A replicated model binds small placeholders the kernels never read.
                 let p = || gpu.buffer("unused", 32, U::STORAGE);
@@ -328,7 +363,7 @@ impl<'g> Tracer<'g> {
                     waiters: p(),
                     line_used: p(),
                 };
-                (None, bufs)
+                (None, bufs, true)
             }
             Some(d) => {
                 let resident = rows.resident_rows();
@@ -387,7 +422,7 @@ impl<'g> Tracer<'g> {
                     trace: FrameTrace::default(),
                     looked_up: vec![false; blocks as usize],
                 };
-                (Some(dc), bufs)
+                (Some(dc), bufs, fits)
             }
         };
         let params_buf = init(
@@ -423,14 +458,55 @@ impl<'g> Tracer<'g> {
             format,
             dc,
             dc_bufs,
+            spares: Vec::new(),
             frame_start: Instant::now(),
             depth: model.depth,
             constants,
             progress: None,
             fit_pixels: None,
+            batches_fit: fits,
         };
         tracer.bound = tracer.bind_kernels();
+        let spares = if tracer.dc.is_some() && settings.overlap_batches {
+            SPARE_LANES
+        } else {
+            0
+        };
+        for l in 1..=spares {
+            let batch = Batch::new(
+                gpu,
+                stack_size,
+                settings.max_batch_rays,
+                lines,
+                FAULT_CAP,
+                colored,
+            )?;
+            let params_buf = init(
+                "params",
+                bytemuck::bytes_of(&tracer.params),
+                U::UNIFORM | U::COPY_DST,
+            );
+            let bound = BoundKernels::placeholder();
+            tracer.spares.push(Lane {
+                batch,
+                params_buf,
+                bound,
+            });
+            tracer.swap_lanes(l);
+            tracer.bound = tracer.bind_kernels();
+            tracer.swap_lanes(l);
+        }
         Ok(tracer)
+    }
+
+    /// Makes lane `l` (1: the first spare) the current one (`self.batch`, `self.params_buf`,
+    /// `self.bound`), and the current one lane `l`; calling it again swaps them back.
+    pub(super) fn swap_lanes(&mut self, l: usize) {
+        if let Some(l) = l.checked_sub(1).and_then(|i| self.spares.get_mut(i)) {
+            std::mem::swap(&mut self.batch, &mut l.batch);
+            std::mem::swap(&mut self.params_buf, &mut l.params_buf);
+            std::mem::swap(&mut self.bound, &mut l.bound);
+        }
     }
 
     /// The resource bound to WGSL variable `name` for a kernel reading live list `lists.input`.
@@ -487,6 +563,11 @@ impl<'g> Tracer<'g> {
             let colored = self.kernels.albedo.is_some();
             self.kernels = Kernels::new(self.gpu, st, &self.constants, shading.mode, colored);
             self.bound = self.bind_kernels();
+            for l in 1..=self.spares.len() {
+                self.swap_lanes(l);
+                self.bound = self.bind_kernels();
+                self.swap_lanes(l);
+            }
         }
         self.settings.shading = shading;
         Ok(())
@@ -585,8 +666,19 @@ impl<'g> Tracer<'g> {
             Some(p) => tiles_per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
             None => tiles_per_batch,
         };
-        let mut first = 0;
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
+        // Batches overlap only where a batch is one trace: one sample and no secondary rays.
+        if !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && waves == 0 {
+            self.params.sample = sh.first_sample;
+            self.params.flags = sample_flags(sh, basis, 0);
+            self.params.albedo_stride = 1;
+            let run = (tiles, tiles_per_batch, rect);
+            self.render_overlapped(run, &mut pixels, passes, stats)?;
+            stats.samples = sh.spp;
+            stats.rays += rect.pixels() as u64;
+            return Ok(pixels);
+        }
+        let mut first = 0;
         let mut passed = 0u64;
         while first < tiles {
             let n_tiles = tiles_per_batch.min(tiles - first);
@@ -594,14 +686,7 @@ impl<'g> Tracer<'g> {
             self.params.batch_rays = n_tiles * TILE_RAYS;
             for s in 0..sh.spp {
                 self.params.sample = sh.first_sample + s;
-                self.params.flags = if sh.spp > 1 { flags::JITTER } else { 0 }
-                    | if sh.cull { flags::CULL } else { 0 }
-                    | if s == 0 { flags::FIRST_SAMPLE } else { 0 }
-                    | match sh.sampler {
-                        Sampler::Sobol => 0,
-                        Sampler::Independent => flags::SAMPLER_INDEPENDENT,
-                    }
-                    | if basis.parallel { flags::PARALLEL } else { 0 };
+                self.params.flags = sample_flags(sh, basis, s);
                 let t = Instant::now();
                 self.params.albedo_stride = 1;
                 stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);
@@ -656,6 +741,7 @@ impl<'g> Tracer<'g> {
                 .as_ref()
                 .map_or(0, |dc| u64::from(dc.policy.lines()));
             self.params.dc_defer = defer_slots(self.settings, stats.distinct_blocks <= lines);
+            self.batches_fit = true;
             self.fit_pixels = self.dc.as_ref().and_then(|dc| {
                 let lines = u64::from(dc.policy.lines());
                 (stats.distinct_blocks > lines).then(|| {
@@ -668,7 +754,7 @@ impl<'g> Tracer<'g> {
     }
 
     /// Submits one direct dispatch of a shading kernel over the batch's pixel slots (no wait).
-    fn run(&self, kernel: &super::kernels::Kernel, bound: &Bound) {
+    pub(super) fn run(&self, kernel: &super::kernels::Kernel, bound: &Bound) {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         let groups = Dispatch::Direct(self.params.batch_rays.div_ceil(WORKGROUP));
         kernel.dispatch(&mut enc, bound, groups, None);
@@ -691,7 +777,7 @@ impl<'g> Tracer<'g> {
     }
 
     /// Reads the batch's pixels back; colours are sums over `spp` samples, divided here.
-    fn read_pixels(
+    pub(super) fn read_pixels(
         &self,
         first_tile: u32,
         n_tiles: u32,

@@ -224,6 +224,74 @@ fn stores_split_over_several_textures_give_the_same_image() {
     }
 }
 
+#[test]
+fn batches_overlap_where_their_tails_meet() {
+    // Small batches (16 tiles) of a 128x96 frame: with a cache, the next batch starts while the
+    // last rays of those in flight still wait for blocks, and their rounds are shared. The
+    // images are those of the replicated model, the same with overlapping off, and a one-line
+    // cache still finishes.
+    let gpu = gpu();
+    let (w, h) = (128, 96);
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let basis = camera.basis(w, h);
+    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let caches = [
+        ("1/1", CacheMap::Ize),
+        ("1/1", CacheMap::Lru),
+        ("1/8", CacheMap::Demarle),
+        ("1/8", CacheMap::Lru),
+        ("1line", CacheMap::Lru),
+    ];
+    let mut short_shared = 0;
+    for (size, map) in caches {
+        let o = DcOptions {
+            ranks: 4,
+            rank: 1,
+            cache: CacheSize::parse(size).unwrap(),
+            map,
+        };
+        let frames = |overlap_batches| {
+            let s = Settings {
+                max_batch_rays: 1024,
+                overlap_batches,
+                ..Settings::default()
+            };
+            let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+            [0, 1].map(|f| {
+                let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                let what = format!("{size} {map:?} overlap {overlap_batches} frame {f}");
+                same_pixels(&reference, &frame, &what);
+                assert!(stats.batches > 1, "{what}");
+                stats
+            })
+        };
+        let (on, off) = (frames(true), frames(false));
+        let what = format!(
+            "{size} {map:?}: fault rounds {} {} (shared {} {}), without overlapping {} {}",
+            on[0].fault_rounds,
+            on[1].fault_rounds,
+            on[0].shared_rounds,
+            on[1].shared_rounds,
+            off[0].fault_rounds,
+            off[1].fault_rounds
+        );
+        eprintln!("{what}");
+        assert!(off.iter().all(|s| s.shared_rounds == 0), "{what}");
+        if size == "1/1" {
+            // The cache holds every borrowed block: batches overlap from the first frame, and
+            // with nothing evicted the rounds do not depend on the order faults arrive in.
+            assert!(on[0].shared_rounds > 0, "{what}");
+            assert!(on[0].fault_rounds < off[0].fault_rounds, "{what}");
+        }
+        if size == "1/8" {
+            // Once a frame has sized the batches to the cache (the rounds vary with the order
+            // the GPU lists faults in, which sets what is evicted).
+            short_shared += on[1].shared_rounds;
+        }
+    }
+    assert!(short_shared > 0, "batches overlap with a short cache");
+}
+
 /// The most blocks on a path from the root to a triangle: the node blocks it passes through, then
 /// the leaf's triangle blocks.
 fn block_chain(b: &dcrt::blocks::Blocks) -> u32 {

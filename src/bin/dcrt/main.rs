@@ -98,6 +98,10 @@ struct GpuArgs {
     /// blocks its GPU holds, instead of suspending at the fault.
     #[arg(long, value_enum, default_value_t = FaultMode::Fit)]
     faults: FaultMode,
+    /// With a distributed cache: start the next batch of rays while the last rays of the current
+    /// one still wait for blocks, so that the two share fault rounds (`false` to compare).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    overlap_batches: bool,
 }
 
 /// Shading options; each overrides the scene's `[render]` value when given.
@@ -453,6 +457,7 @@ fn settings(g: &GpuArgs) -> Settings {
         step_budget: g.step_budget,
         store: g.store,
         faults: g.faults,
+        overlap_batches: g.overlap_batches,
         ..Settings::default()
     }
 }

@@ -62,6 +62,8 @@ struct DcReport {
     frames: u32,
     /// `--faults`: when rays went on past a fault.
     faults: dcrt::gpu::tracer::FaultMode,
+    /// `--overlap-batches`: whether a batch's last rounds shared rounds with the next batch.
+    overlap_batches: bool,
     model_mib: f64,
     rows: Vec<DcRow>,
     memory: Vec<MemoryRow>,
@@ -220,6 +222,7 @@ pub fn run(
         rank: a.rank,
         frames: a.frames,
         faults: a.gpu.faults,
+        overlap_batches: a.gpu.overlap_batches,
         model_mib: mib(blocks.bytes()),
         rows,
         memory,
@@ -231,7 +234,7 @@ fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
-         {} orbit frames (the first, cold, reported apart), --faults {:?}",
+         {} orbit frames (the first, cold, reported apart), --faults {:?}, --overlap-batches {}",
         report.scene,
         report.triangles,
         report.model_mib,
@@ -240,7 +243,8 @@ fn print(report: &DcReport) {
         report.rank,
         report.ranks,
         report.frames,
-        report.faults
+        report.faults,
+        report.overlap_batches
     );
     let t = Table(&[
         ("config", -10),
