@@ -64,9 +64,9 @@ pub struct Settings {
     /// With a cache: when a ray sets absent blocks' entries aside and goes on with what the GPU
     /// holds instead of suspending at the fault.
     pub faults: FaultMode,
-    /// With a cache: start the next batch in a second set of batch buffers while the last rays
-    /// of the current one still wait for blocks, so that their fault rounds are shared.
-    pub overlap_batches: bool,
+    /// With a cache: when the next batch starts in another set of batch buffers while the last
+    /// rays of the current one still wait for blocks, so that their fault rounds are shared.
+    pub overlap_batches: OverlapMode,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
 }
@@ -79,7 +79,7 @@ impl Default for Settings {
             store: Store::Texture,
             max_texture_bytes: None,
             faults: FaultMode::Fit,
-            overlap_batches: true,
+            overlap_batches: OverlapMode::Auto,
             shading: Shading::default(),
         }
     }
@@ -244,6 +244,9 @@ pub struct Tracer<'g> {
     /// borrowed block, or a frame has ended and sized `fit_pixels`. Only then do batches overlap:
     /// two batches too big for the cache evict each other's blocks.
     batches_fit: bool,
+    /// Whether a `render_rect` call of the frame took more than one batch: spare lanes are
+    /// worth their memory (`add_spare_lanes`).
+    several_batches: bool,
 }
 
 /// Set-aside slots a ray may use in a frame (`Params::dc_defer`). Only when the frame's blocks fit
@@ -283,6 +286,21 @@ pub enum FaultMode {
     Never,
     /// In every frame (where the cache is short it fetches more; for measurements).
     Always,
+}
+
+/// When batches overlap with a distributed cache (docs/ARCHITECTURE.md, Overlapping batches).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OverlapMode {
+    /// With an associative cache (`lru`): a new batch's blocks take the lines least recently
+    /// used. In a direct-mapped cache they evict, by their place, blocks the last batch's rays
+    /// wait for (measured: 12-17% more fetches).
+    #[default]
+    Auto,
+    /// With any cache (for measurements).
+    Always,
+    /// Never: one batch at a time.
+    Never,
 }
 
 /// What `Tracer::set_progress` installs.
@@ -465,38 +483,56 @@ impl<'g> Tracer<'g> {
             progress: None,
             fit_pixels: None,
             batches_fit: fits,
+            several_batches: false,
         };
         tracer.bound = tracer.bind_kernels();
-        let spares = if tracer.dc.is_some() && settings.overlap_batches {
-            SPARE_LANES
-        } else {
-            0
+        if fits {
+            tracer.add_spare_lanes()?;
+        }
+        Ok(tracer)
+    }
+
+    /// With a cache and `Settings::overlap_batches`, allocates the spare lanes once and commits
+    /// their memory: when the tracer is made if the cache holds every borrowed block, else after
+    /// the first frame that took several batches for one rectangle (so outside a frame's time,
+    /// and never for a cluster rank whose tiles are one batch each).
+    fn add_spare_lanes(&mut self) -> Result<()> {
+        let Some(dc) = &self.dc else {
+            return Ok(());
         };
-        for l in 1..=spares {
-            let batch = Batch::new(
-                gpu,
-                stack_size,
-                settings.max_batch_rays,
-                lines,
-                FAULT_CAP,
-                colored,
-            )?;
-            let params_buf = init(
+        let on = match self.settings.overlap_batches {
+            OverlapMode::Auto => dc.policy.map() == CacheMap::Lru,
+            OverlapMode::Always => true,
+            OverlapMode::Never => false,
+        };
+        if !on || !self.spares.is_empty() {
+            return Ok(());
+        }
+        let (gpu, lines) = (self.gpu, dc.policy.lines());
+        let colored = self.kernels.albedo.is_some();
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for l in 1..=SPARE_LANES {
+            let s = self.params.stack_size;
+            let max = self.settings.max_batch_rays;
+            let batch = Batch::new(gpu, s, max, lines, FAULT_CAP, colored)?;
+            batch.commit(&mut enc);
+            let params_buf = gpu.buffer(
                 "params",
-                bytemuck::bytes_of(&tracer.params),
-                U::UNIFORM | U::COPY_DST,
+                size_of::<Params>() as u64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             );
             let bound = BoundKernels::placeholder();
-            tracer.spares.push(Lane {
+            self.spares.push(Lane {
                 batch,
                 params_buf,
                 bound,
             });
-            tracer.swap_lanes(l);
-            tracer.bound = tracer.bind_kernels();
-            tracer.swap_lanes(l);
+            self.swap_lanes(l);
+            self.bound = self.bind_kernels();
+            self.swap_lanes(l);
         }
-        Ok(tracer)
+        gpu.queue.submit([enc.finish()]);
+        gpu.wait()
     }
 
     /// Makes lane `l` (1: the first spare) the current one (`self.batch`, `self.params_buf`,
@@ -667,6 +703,7 @@ impl<'g> Tracer<'g> {
             None => tiles_per_batch,
         };
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
+        self.several_batches |= tiles > tiles_per_batch;
         // Batches overlap only where a batch is one trace: one sample and no secondary rays.
         if !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && waves == 0 {
             self.params.sample = sh.first_sample;
@@ -742,6 +779,9 @@ impl<'g> Tracer<'g> {
                 .map_or(0, |dc| u64::from(dc.policy.lines()));
             self.params.dc_defer = defer_slots(self.settings, stats.distinct_blocks <= lines);
             self.batches_fit = true;
+            if std::mem::take(&mut self.several_batches) {
+                self.add_spare_lanes()?;
+            }
             self.fit_pixels = self.dc.as_ref().and_then(|dc| {
                 let lines = u64::from(dc.policy.lines());
                 (stats.distinct_blocks > lines).then(|| {

@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::{FaultMode, Settings};
+use dcrt::gpu::tracer::{FaultMode, OverlapMode, Settings};
 use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
@@ -253,7 +253,11 @@ fn batches_overlap_where_their_tails_meet() {
         let frames = |overlap_batches| {
             let s = Settings {
                 max_batch_rays: 1024,
-                overlap_batches,
+                overlap_batches: if overlap_batches {
+                    OverlapMode::Always
+                } else {
+                    OverlapMode::Never
+                },
                 ..Settings::default()
             };
             let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
@@ -282,6 +286,15 @@ fn batches_overlap_where_their_tails_meet() {
             // with nothing evicted the rounds do not depend on the order faults arrive in.
             assert!(on[0].shared_rounds > 0, "{what}");
             assert!(on[0].fault_rounds < off[0].fault_rounds, "{what}");
+            // By default only an associative cache overlaps batches.
+            let s = Settings {
+                max_batch_rays: 1024,
+                ..Settings::default()
+            };
+            let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+            let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+            same_pixels(&reference, &frame, &what);
+            assert_eq!(stats.shared_rounds > 0, map == CacheMap::Lru, "{what}");
         }
         if size == "1/8" {
             // Once a frame has sized the batches to the cache (the rounds vary with the order

@@ -16,7 +16,7 @@ use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, FaultMode, Settings};
+use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, FaultMode, OverlapMode, Settings};
 use dcrt::output::Aov;
 use dcrt::render::DcOptions;
 use dcrt::shading::{Mode, Overrides, Sampler, Shading};
@@ -98,10 +98,10 @@ struct GpuArgs {
     /// blocks its GPU holds, instead of suspending at the fault.
     #[arg(long, value_enum, default_value_t = FaultMode::Fit)]
     faults: FaultMode,
-    /// With a distributed cache: start the next batch of rays while the last rays of the current
-    /// one still wait for blocks, so that the two share fault rounds (`false` to compare).
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
-    overlap_batches: bool,
+    /// With a distributed cache: when the next batch of rays starts while the last rays of the
+    /// current one still wait for blocks, so that the two share fault rounds.
+    #[arg(long, value_enum, default_value_t = OverlapMode::Auto)]
+    overlap_batches: OverlapMode,
 }
 
 /// Shading options; each overrides the scene's `[render]` value when given.

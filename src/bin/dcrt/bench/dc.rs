@@ -62,8 +62,8 @@ struct DcReport {
     frames: u32,
     /// `--faults`: when rays went on past a fault.
     faults: dcrt::gpu::tracer::FaultMode,
-    /// `--overlap-batches`: whether a batch's last rounds shared rounds with the next batch.
-    overlap_batches: bool,
+    /// `--overlap-batches`: when a batch's last rounds shared rounds with the next batch.
+    overlap_batches: dcrt::gpu::tracer::OverlapMode,
     model_mib: f64,
     rows: Vec<DcRow>,
     memory: Vec<MemoryRow>,
@@ -234,7 +234,7 @@ fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
-         {} orbit frames (the first, cold, reported apart), --faults {:?}, --overlap-batches {}",
+         {} orbit frames (the first, cold, reported apart), --faults {:?}, --overlap-batches {:?}",
         report.scene,
         report.triangles,
         report.model_mib,
