@@ -13,13 +13,14 @@ use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
 use crate::error::Result;
 use crate::gpu::Idle;
-use crate::gpu::tracer::{DcSetup, FrameStats, Rect, Tracer, ms};
+use crate::gpu::layout::Pixel;
+use crate::gpu::tracer::{DcSetup, FrameStats, Next, Rect, RectSource, Tracer, ms};
 use crate::render::frames::{FrameBody, FrameCtx, FramePlan, Role, View, run_frames};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use serde_json::json;
 use std::collections::{BTreeMap, VecDeque};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Borrowed blocks read from their owners' windows, a whole round in one epoch.
 struct MpiBlocks {
@@ -188,6 +189,131 @@ struct RenderRank<'a> {
     sent: Sent,
 }
 
+/// A frame's tiles as the tracer takes them: asked of the balancer one ahead, so that the answer
+/// is in before the queue runs dry; their pixels are sent to the display as each is done.
+struct RankTiles<'r, 'a> {
+    rank: &'r mut RenderRank<'a>,
+    frame: u32,
+    balancer: u32,
+    ask: Vec<u8>,
+    queue: VecDeque<Rect>,
+    /// An answer from the balancer is due; the balancer has ended the frame.
+    asked: bool,
+    ended: bool,
+    /// Tiles handed to the tracer and when; when the last tile's pixels were sent.
+    handed: Vec<(Rect, Duration)>,
+    last_end: Duration,
+    sent: Sent,
+}
+
+impl RankTiles<'_, '_> {
+    /// Takes in the balancer's answers: waiting for one only when `wait`.
+    fn take_answers(&mut self, wait: bool) -> Result<()> {
+        let r = &*self.rank;
+        while self.asked {
+            let msg = match (poll_from(r.world, self.balancer, Tag::Work), wait) {
+                (Some(msg), _) => msg,
+                (None, true) => wait_from(
+                    r.world,
+                    self.balancer,
+                    Tag::Work,
+                    "answer from the balancer",
+                    r.opts.timeout,
+                )?,
+                (None, false) => break,
+            };
+            self.asked = false;
+            let work = Work::decode(self.balancer, &msg)?;
+            if work.frame != self.frame {
+                return Err(malformed(
+                    Tag::Work,
+                    self.balancer,
+                    format!(
+                        "tiles of frame {} while rendering frame {}",
+                        work.frame, self.frame
+                    ),
+                ));
+            }
+            if work.tiles.is_empty() {
+                self.ended = true;
+            }
+            self.queue.extend(work.tiles);
+        }
+        Ok(())
+    }
+
+    fn ask(&mut self) {
+        if !self.asked && !self.ended {
+            send(self.rank.world, self.balancer, Tag::Ask, &self.ask);
+            self.asked = true;
+        }
+    }
+
+    /// Sends a tile's encoded pixels and records the tile: its span starts when it was handed
+    /// to the tracer or when the last tile was sent, whichever is later, so that the spans of a
+    /// rank's tiles follow each other even where their rounds overlap.
+    fn send_tile(&mut self, rect: Rect, handed: Duration, encoded: &[u8]) {
+        let r = &mut *self.rank;
+        let t0 = handed.max(self.last_end);
+        let t1 = r.start.elapsed().max(t0);
+        for m in r.packer.push_encoded(self.frame, rect, encoded) {
+            self.sent.bytes += m.len() as u64;
+            self.sent.messages += 1;
+            send(r.world, Roles::DISPLAY, Tag::Pixels, &m);
+        }
+        self.last_end = r.start.elapsed();
+        self.sent.events.push(json!({
+            "type": "tile", "x": rect.x, "y": rect.y, "w": rect.w, "h": rect.h,
+            "start_ms": ms(t0), "trace_ms": ms(t1 - t0),
+            "send_ms": ms(self.last_end - t1),
+        }));
+    }
+}
+
+impl RectSource for RankTiles<'_, '_> {
+    fn next(&mut self, busy: bool) -> Result<Next> {
+        loop {
+            self.take_answers(self.queue.is_empty() && !busy)?;
+            let Some(rect) = self.queue.pop_front() else {
+                if self.ended {
+                    return Ok(Next::End);
+                }
+                self.ask();
+                if busy {
+                    return Ok(Next::Later);
+                }
+                continue;
+            };
+            // Ask for the next tile while one is still queued, so that the answer is in before
+            // the queue runs dry.
+            if self.queue.len() <= 1 {
+                self.ask();
+            }
+            self.rank.failure.at_tile(self.rank.rank, self.frame);
+            let handed = self.rank.start.elapsed();
+            let key = (rect.x, rect.y, rect.w, rect.h);
+            if let Some(encoded) = self.rank.kept.get(&key).cloned() {
+                self.send_tile(rect, handed, &encoded);
+                continue;
+            }
+            self.handed.push((rect, handed));
+            return Ok(Next::Rect(rect));
+        }
+    }
+
+    fn done(&mut self, rect: Rect, pixels: Vec<Pixel>) -> Result<()> {
+        let at = self.handed.iter().position(|(r, _)| *r == rect);
+        let handed = at.map_or(self.last_end, |i| self.handed.swap_remove(i).1);
+        let encoded = self.rank.packer.encode(&pixels);
+        if self.rank.opts.display_bench {
+            let key = (rect.x, rect.y, rect.w, rect.h);
+            self.rank.kept.insert(key, encoded.clone());
+        }
+        self.send_tile(rect, handed, &encoded);
+        Ok(())
+    }
+}
+
 /// The tiles, messages and bytes a frame sent to the display.
 #[derive(Default)]
 struct Sent {
@@ -199,7 +325,6 @@ struct Sent {
 impl FrameBody for RenderRank<'_> {
     /// Asks for tiles until the balancer ends the frame, traces them and sends their pixels.
     fn trace(&mut self, ctx: FrameCtx<'_, '_>) -> Result<()> {
-        let (world, opts, rank) = (self.world, self.opts, self.rank);
         let FrameCtx {
             frame,
             camera,
@@ -207,97 +332,30 @@ impl FrameBody for RenderRank<'_> {
             stats,
         } = ctx;
         let basis = camera.basis(self.size.0, self.size.1);
+        let background = self.background;
         let balancer = self.roles.balancer();
         let ask = Ask { frame }.encode();
-        let mut events = Vec::new();
-        let mut queue: VecDeque<Rect> = VecDeque::new();
-        send(world, balancer, Tag::Ask, &ask);
-        let mut asked = true;
-        let mut ended = false;
-        let (mut sent_bytes, mut messages) = (0u64, 0u32);
-        loop {
-            // Take in an answer: blocking when there is nothing left to trace.
-            while asked {
-                let msg = match (poll_from(world, balancer, Tag::Work), queue.is_empty()) {
-                    (Some(msg), _) => msg,
-                    (None, true) => wait_from(
-                        world,
-                        balancer,
-                        Tag::Work,
-                        "answer from the balancer",
-                        opts.timeout,
-                    )?,
-                    (None, false) => break,
-                };
-                asked = false;
-                let work = Work::decode(balancer, &msg)?;
-                if work.frame != frame {
-                    return Err(malformed(
-                        Tag::Work,
-                        balancer,
-                        format!(
-                            "tiles of frame {} while rendering frame {frame}",
-                            work.frame
-                        ),
-                    ));
-                }
-                if work.tiles.is_empty() {
-                    ended = true;
-                }
-                queue.extend(work.tiles);
-            }
-            let Some(rect) = queue.pop_front() else {
-                if ended {
-                    break;
-                }
-                if !asked {
-                    send(world, balancer, Tag::Ask, &ask);
-                    asked = true;
-                }
-                continue;
-            };
-            // Ask for the next tile while one is still queued, so that the answer is in before
-            // the queue runs dry.
-            if queue.len() <= 1 && !ended && !asked {
-                send(world, balancer, Tag::Ask, &ask);
-                asked = true;
-            }
-            self.failure.at_tile(rank, frame);
-            let t0 = self.start.elapsed();
-            let key = (rect.x, rect.y, rect.w, rect.h);
-            let encoded = match self.kept.get(&key) {
-                Some(p) => p.clone(),
-                None => {
-                    let p = tracer.render_rect(&basis, self.background, rect, stats)?;
-                    let e = self.packer.encode(&p);
-                    if opts.display_bench {
-                        self.kept.insert(key, e.clone());
-                    }
-                    e
-                }
-            };
-            let t1 = self.start.elapsed();
-            for m in self.packer.push_encoded(frame, rect, &encoded) {
-                sent_bytes += m.len() as u64;
-                messages += 1;
-                send(world, Roles::DISPLAY, Tag::Pixels, &m);
-            }
-            events.push(json!({
-                "type": "tile", "x": rect.x, "y": rect.y, "w": rect.w, "h": rect.h,
-                "start_ms": ms(t0), "trace_ms": ms(t1 - t0),
-                "send_ms": ms(self.start.elapsed() - t1),
-            }));
-        }
-        if let Some(m) = self.packer.flush() {
-            sent_bytes += m.len() as u64;
-            messages += 1;
-            send(world, Roles::DISPLAY, Tag::Pixels, &m);
-        }
-        self.sent = Sent {
-            events,
-            messages,
-            bytes: sent_bytes,
+        send(self.world, balancer, Tag::Ask, &ask);
+        let mut tiles = RankTiles {
+            rank: self,
+            frame,
+            balancer,
+            ask,
+            queue: VecDeque::new(),
+            asked: true,
+            ended: false,
+            handed: Vec::new(),
+            last_end: Duration::ZERO,
+            sent: Sent::default(),
         };
+        tracer.render_rects(&basis, background, &mut tiles, stats)?;
+        let mut sent = tiles.sent;
+        if let Some(m) = self.packer.flush() {
+            sent.bytes += m.len() as u64;
+            sent.messages += 1;
+            send(self.world, Roles::DISPLAY, Tag::Pixels, &m);
+        }
+        self.sent = sent;
         Ok(())
     }
 

@@ -126,6 +126,9 @@ pub struct Summary {
     pub cache_map: String,
     pub rounds: u32,
     pub fault_rounds: u32,
+    /// Rounds in which more than one batch was in flight (absent in traces of older builds).
+    #[serde(default)]
+    pub shared_rounds: u32,
     pub lookups: u64,
     pub hits: u64,
     pub misses: u64,

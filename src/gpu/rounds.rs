@@ -9,9 +9,11 @@ use super::batch::{Batch, TILE_RAYS, fault_bytes};
 use super::frame::Rect;
 use super::kernels::Dispatch;
 use super::layout::{FaultHeader, Pixel, RoundReadback, Stats};
-use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Tracer};
+use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Next, RectSource, Tracer};
 use crate::dc::trace::Round;
 use crate::error::{Error, Result};
+use crate::scene::CameraBasis;
+use std::collections::VecDeque;
 use std::mem::{offset_of, size_of};
 use std::time::Instant;
 
@@ -179,47 +181,78 @@ impl Tracer<'_> {
         )))
     }
 
-    /// Traces and shades the primary rays of `tiles` tiles of `rect` in batches of `per_batch`
-    /// tiles, two batches at a time where their rounds overlap (docs/ARCHITECTURE.md,
-    /// Overlapping batches): when the live rays of every batch in flight are down to a
-    /// `TAIL_SHARE`th of those it started with, the next batch starts in the free lane, and each
-    /// round dispatches `trace` in both lanes and serves their faults together. A batch whose
-    /// rays are all done is resolved, shaded and read back in its lane. `Params` holds the
-    /// frame's and the sample's values; one pass per batch is reported to the progress callback.
+    /// Traces and shades the rectangles `source` hands out, batches of them overlapping
+    /// (docs/ARCHITECTURE.md, Overlapping batches): when the live rays of every batch in flight
+    /// are down to a `TAIL_SHARE`th of those it started with and the last round used at most
+    /// half the cache's lines, the next batch (of this rectangle, or of the next one the source
+    /// has) starts in a free lane, and each round dispatches `trace` in every lane with a batch
+    /// and serves their faults together. A batch whose rays are all done is resolved, shaded and
+    /// read back in its lane; a rectangle whose batches are all done goes to `source.done`. With
+    /// `passes`, each finished batch is reported to the progress callback.
     pub(super) fn render_overlapped(
         &mut self,
-        (tiles, per_batch, rect): (u32, u32, Rect),
-        pixels: &mut [Pixel],
-        passes: u64,
+        basis: &CameraBasis,
+        background: [f32; 3],
+        source: &mut dyn RectSource,
+        passes: Option<u64>,
         stats: &mut FrameStats,
     ) -> Result<()> {
         let gpu = self.gpu;
-        // The batch in each lane: (first tile, tiles, list its live rays are in, rays it
-        // started with once known, live rays after its last round, rounds).
         let mut runs: Vec<Option<LaneRun>> = (0..=self.spares.len()).map(|_| None).collect();
-        let mut next = 0;
-        let mut passed = 0;
-        let mut round = 0;
+        // Batches not started yet, and the pixels of rectangles with batches left.
+        let mut pending: VecDeque<LaneRun> = VecDeque::new();
+        let mut open: Vec<Option<OpenRect>> = Vec::new();
+        let mut ended = false;
+        let (mut passed, mut round) = (0, 0);
         // Lines the last round used: a new batch starts only while those in flight leave at
         // least half the cache free.
         let mut used_lines = 0;
         let lines = self.dc.as_ref().map_or(0, |dc| dc.policy.lines());
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
-        while next < tiles || runs.iter().any(Option::is_some) {
+        loop {
             let t = Instant::now();
-            let tails = runs.iter().flatten().all(LaneRun::in_tail) && used_lines * 2 <= lines;
-            if let (true, true, Some(l)) =
-                (next < tiles, tails, runs.iter().position(Option::is_none))
-            {
-                let n_tiles = per_batch.min(tiles - next);
-                self.params.first_tile = next;
-                self.params.batch_rays = n_tiles * TILE_RAYS;
+            let busy = runs.iter().any(Option::is_some);
+            let room = !busy || used_lines * 2 <= lines;
+            let tails = runs.iter().flatten().all(LaneRun::in_tail) && room;
+            let free = runs.iter().position(Option::is_none);
+            if tails && free.is_some() && pending.is_empty() && !ended {
+                match source.next(busy)? {
+                    Next::Rect(rect) => {
+                        let plan = self.begin_rect(basis, background, rect)?;
+                        let slot = open.len();
+                        let mut batches = 0;
+                        for first in (0..plan.tiles).step_by(plan.per_batch as usize) {
+                            let tiles = plan.per_batch.min(plan.tiles - first);
+                            pending.push_back(LaneRun::new(rect, plan.tiles_x, slot, first, tiles));
+                            batches += 1;
+                        }
+                        let pixels = vec![Pixel::default(); rect.pixels()];
+                        open.push(Some(OpenRect { pixels, batches }));
+                        stats.rays += rect.pixels() as u64;
+                        stats.samples = self.params.spp;
+                        self.several_batches |= open.len() > 1;
+                    }
+                    Next::Later => {}
+                    Next::End => ended = true,
+                }
+            }
+            let start = free.filter(|_| tails);
+            if let Some((l, run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
+                self.set_rect(run.rect, run.tiles_x);
+                self.params.first_tile = run.first;
+                self.params.batch_rays = run.tiles * TILE_RAYS;
                 self.record_start(&mut enc, l, Gen::Primary);
-                runs[l] = Some(LaneRun::new(next, n_tiles));
-                next += n_tiles;
+                runs[l] = Some(run);
             }
             let active: Vec<usize> = (0..runs.len()).filter(|&l| runs[l].is_some()).collect();
+            if active.is_empty() {
+                if ended && pending.is_empty() {
+                    return Ok(());
+                }
+                // The source had nothing at hand while nothing was in flight: ask again.
+                continue;
+            }
             for (i, &l) in active.iter().enumerate() {
                 let run = runs[l].as_mut().expect("an active lane has a batch");
                 let ends = (i == 0, i + 1 == active.len());
@@ -279,35 +312,43 @@ impl Tracer<'_> {
             for l in done {
                 let t = Instant::now();
                 let run = runs[l].take().expect("a finished lane had a batch");
-                self.swap_lanes(l);
+                let rect = open[run.slot]
+                    .as_mut()
+                    .expect("a batch's rectangle is open");
+                self.set_rect(run.rect, run.tiles_x);
                 self.params.first_tile = run.first;
                 self.params.batch_rays = run.tiles * TILE_RAYS;
-                let shaded = self.shade_batch(run, rect, pixels, stats);
+                self.swap_lanes(l);
+                let shaded = self.shade_batch(&run, &mut rect.pixels, stats);
                 self.swap_lanes(l);
                 shaded?;
+                rect.batches -= 1;
+                if rect.batches == 0 {
+                    let pixels = std::mem::take(&mut rect.pixels);
+                    open[run.slot] = None;
+                    source.done(run.rect, pixels)?;
+                }
                 stats.shade_seconds += t.elapsed().as_secs_f64();
                 passed += 1;
-                if let Some(p) = self.progress.as_mut() {
-                    p(passed, passes);
+                if let (Some(p), Some(n)) = (self.progress.as_mut(), passes) {
+                    p(passed, n);
                 }
             }
             enc = gpu.device.create_command_encoder(&Default::default());
             self.clear_faults(&mut enc);
         }
-        Ok(())
     }
 
     /// Resolves albedos, shades and reads back the current lane's traced batch.
     fn shade_batch(
         &mut self,
-        run: LaneRun,
-        rect: Rect,
+        run: &LaneRun,
         pixels: &mut [Pixel],
         stats: &mut FrameStats,
     ) -> Result<()> {
         self.resolve_albedos(stats)?;
         self.run(&self.kernels.shade, &self.bound.shade);
-        self.read_pixels(run.first, run.tiles, rect, 1, pixels)?;
+        self.read_pixels(run.first, run.tiles, run.rect, 1, pixels)?;
         stats.batches += 1;
         Ok(())
     }
@@ -493,9 +534,13 @@ fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
 /// the last rounds of a batch carry few rays, each climbing its own chain of absent blocks.
 const TAIL_SHARE: u32 = 16;
 
-/// A batch in flight in one lane (`Tracer::render_overlapped`).
+/// A batch in one lane, or waiting for one (`Tracer::render_overlapped`).
 struct LaneRun {
-    /// Its first tile and tile count.
+    /// Its rectangle, the rectangle's tiles a row and its place in the open rectangles.
+    rect: Rect,
+    tiles_x: u32,
+    slot: usize,
+    /// Its first tile and tile count within the rectangle.
     first: u32,
     tiles: u32,
     /// The live list its next round reads.
@@ -506,9 +551,18 @@ struct LaneRun {
     rounds: u32,
 }
 
+/// A rectangle with batches in flight or waiting: its pixels so far and the batches left.
+struct OpenRect {
+    pixels: Vec<Pixel>,
+    batches: u32,
+}
+
 impl LaneRun {
-    fn new(first: u32, tiles: u32) -> LaneRun {
+    fn new(rect: Rect, tiles_x: u32, slot: usize, first: u32, tiles: u32) -> LaneRun {
         LaneRun {
+            rect,
+            tiles_x,
+            slot,
             first,
             tiles,
             list: 0,

@@ -246,7 +246,7 @@ pub struct Tracer<'g> {
     batches_fit: bool,
     /// Whether a `render_rect` call of the frame took more than one batch: spare lanes are
     /// worth their memory (`add_spare_lanes`).
-    several_batches: bool,
+    pub(super) several_batches: bool,
 }
 
 /// Set-aside slots a ray may use in a frame (`Params::dc_defer`). Only when the frame's blocks fit
@@ -272,6 +272,50 @@ fn sample_flags(sh: Shading, basis: &CameraBasis, s: u32) -> u32 {
             Sampler::Independent => flags::SAMPLER_INDEPENDENT,
         }
         | if basis.parallel { flags::PARALLEL } else { 0 }
+}
+
+/// Where `Tracer::render_rects` takes rectangles from and gives their pixels to.
+pub trait RectSource {
+    /// The next rectangle to trace. `busy`: rectangles are in flight, so answer `Next::Later`
+    /// rather than wait when none is at hand; when not busy, wait for one.
+    fn next(&mut self, busy: bool) -> Result<Next>;
+    /// A rectangle's pixels, row-major within it, once all its rays are done.
+    fn done(&mut self, rect: Rect, pixels: Vec<Pixel>) -> Result<()>;
+}
+
+/// What a `RectSource` has next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Next {
+    Rect(Rect),
+    /// None at hand yet.
+    Later,
+    /// None left this frame.
+    End,
+}
+
+/// `render_rect`'s one rectangle as a source.
+struct OneRect {
+    rect: Option<Rect>,
+    pixels: Option<Vec<Pixel>>,
+}
+
+impl RectSource for OneRect {
+    fn next(&mut self, _busy: bool) -> Result<Next> {
+        Ok(self.rect.take().map_or(Next::End, Next::Rect))
+    }
+
+    fn done(&mut self, _rect: Rect, pixels: Vec<Pixel>) -> Result<()> {
+        self.pixels = Some(pixels);
+        Ok(())
+    }
+}
+
+/// How `begin_rect` cuts a rectangle: its 8x8 tiles, tiles a row, tiles a batch.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct RectPlan {
+    pub tiles: u32,
+    pub tiles_x: u32,
+    pub per_batch: u32,
 }
 
 /// When a ray with a distributed cache goes on past a fault (docs/ARCHITECTURE.md, The round
@@ -661,59 +705,19 @@ impl<'g> Tracer<'g> {
         rect: Rect,
         stats: &mut FrameStats,
     ) -> Result<Vec<Pixel>> {
-        let (w, h) = (basis.width, basis.height);
-        if rect.w == 0 || rect.h == 0 || rect.x + rect.w > w || rect.y + rect.h > h {
-            return Err(Error::Invalid(format!(
-                "tile {rect:?} is empty or outside the {w}x{h} image"
-            )));
-        }
-        let tiles_x = rect.w.div_ceil(TILE);
-        let tiles = tiles_x * rect.h.div_ceil(TILE);
-        let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
-        self.params.origin = v4(basis.origin, 1.0);
-        self.params.forward = v4(basis.forward, 0.0);
-        self.params.right = v4(basis.right, 0.0);
-        self.params.up = v4(basis.up, 0.0);
-        self.params.background = v4(background, 1.0);
-        self.params.width = w;
-        self.params.height = h;
-        self.params.tiles_x = tiles_x;
-        (self.params.rect_x, self.params.rect_y) = (rect.x, rect.y);
-        (self.params.rect_w, self.params.rect_h) = (rect.w, rect.h);
+        let plan = self.begin_rect(basis, background, rect)?;
+        let (tiles, tiles_per_batch) = (plan.tiles, plan.per_batch);
         let sh = self.settings.shading;
-        let fan = sh.fan(basis);
-        let waves = sh.waves(basis);
-        self.gpu.write(&self.shade_buf, &sh.gpu_params(basis));
-        self.params.seed = sh.seed;
-        self.params.spp = sh.spp;
+        let (fan, waves) = (sh.fan(basis), sh.waves(basis));
         let mut pixels = vec![Pixel::default(); rect.pixels()];
-        // A wave puts `fan` secondary rays per pixel in the ray buffer: fewer pixels per batch.
-        let tiles_per_batch = self.batch.rays_cap / fan.max(1) / TILE_RAYS;
-        if tiles_per_batch == 0 {
-            return Err(Error::Gpu(format!(
-                "{fan} secondary rays per pixel do not fit a batch of {} rays",
-                self.batch.rays_cap
-            )));
-        }
-        // A batch's rays advance in lockstep: when their blocks outnumber the cache's lines, a
-        // block is evicted before all its rays have used it and fetched again. Smaller batches
-        // trade rounds for fetches (docs/ARCHITECTURE.md, The distributed cache).
-        let tiles_per_batch = match self.fit_pixels {
-            Some(p) => tiles_per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
-            None => tiles_per_batch,
-        };
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
-        self.several_batches |= tiles > tiles_per_batch;
-        // Batches overlap only where a batch is one trace: one sample and no secondary rays.
-        if !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && waves == 0 {
-            self.params.sample = sh.first_sample;
-            self.params.flags = sample_flags(sh, basis, 0);
-            self.params.albedo_stride = 1;
-            let run = (tiles, tiles_per_batch, rect);
-            self.render_overlapped(run, &mut pixels, passes, stats)?;
-            stats.samples = sh.spp;
-            stats.rays += rect.pixels() as u64;
-            return Ok(pixels);
+        if self.overlaps(basis) {
+            let mut one = OneRect {
+                rect: Some(rect),
+                pixels: None,
+            };
+            self.render_overlapped(basis, background, &mut one, Some(passes), stats)?;
+            return Ok(one.pixels.unwrap_or(pixels));
         }
         let mut first = 0;
         let mut passed = 0u64;
@@ -764,6 +768,106 @@ impl<'g> Tracer<'g> {
         stats.samples = sh.spp;
         stats.rays += rect.pixels() as u64;
         Ok(pixels)
+    }
+
+    /// Traces and shades the rectangles `source` hands out, giving it each one's pixels (row-major
+    /// within it) as soon as they are done, and adding to `stats`. With overlapping batches
+    /// (docs/ARCHITECTURE.md, Overlapping batches) the next rectangle starts while the last rays
+    /// of the ones in flight still wait for blocks; otherwise they are traced one by one, as
+    /// `render_rect` does.
+    pub fn render_rects(
+        &mut self,
+        basis: &CameraBasis,
+        background: [f32; 3],
+        source: &mut dyn RectSource,
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        if self.overlaps(basis) {
+            return self.render_overlapped(basis, background, source, None, stats);
+        }
+        let mut rects = 0;
+        loop {
+            match source.next(false)? {
+                Next::Rect(rect) => {
+                    let pixels = self.render_rect(basis, background, rect, stats)?;
+                    rects += 1;
+                    self.several_batches |= rects > 1;
+                    source.done(rect, pixels)?;
+                }
+                Next::Later => {}
+                Next::End => return Ok(()),
+            }
+        }
+    }
+
+    /// Whether batches overlap: spare lanes exist, batches are known to fit the cache, and a
+    /// batch is one trace (one sample, no secondary rays).
+    fn overlaps(&self, basis: &CameraBasis) -> bool {
+        let sh = self.settings.shading;
+        !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && sh.waves(basis) == 0
+    }
+
+    /// Checks a rectangle and sets `Params` for it (camera, image, rectangle, shading; also the
+    /// first sample's number and flags), and how it is cut into batches.
+    pub(super) fn begin_rect(
+        &mut self,
+        basis: &CameraBasis,
+        background: [f32; 3],
+        rect: Rect,
+    ) -> Result<RectPlan> {
+        let (w, h) = (basis.width, basis.height);
+        if rect.w == 0 || rect.h == 0 || rect.x + rect.w > w || rect.y + rect.h > h {
+            return Err(Error::Invalid(format!(
+                "tile {rect:?} is empty or outside the {w}x{h} image"
+            )));
+        }
+        let tiles_x = rect.w.div_ceil(TILE);
+        let tiles = tiles_x * rect.h.div_ceil(TILE);
+        let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
+        self.params.origin = v4(basis.origin, 1.0);
+        self.params.forward = v4(basis.forward, 0.0);
+        self.params.right = v4(basis.right, 0.0);
+        self.params.up = v4(basis.up, 0.0);
+        self.params.background = v4(background, 1.0);
+        self.params.width = w;
+        self.params.height = h;
+        self.set_rect(rect, tiles_x);
+        let sh = self.settings.shading;
+        let fan = sh.fan(basis);
+        self.gpu.write(&self.shade_buf, &sh.gpu_params(basis));
+        self.params.seed = sh.seed;
+        self.params.spp = sh.spp;
+        self.params.sample = sh.first_sample;
+        self.params.flags = sample_flags(sh, basis, 0);
+        self.params.albedo_stride = 1;
+        // A wave puts `fan` secondary rays per pixel in the ray buffer: fewer pixels per batch.
+        let per_batch = self.batch.rays_cap / fan.max(1) / TILE_RAYS;
+        if per_batch == 0 {
+            return Err(Error::Gpu(format!(
+                "{fan} secondary rays per pixel do not fit a batch of {} rays",
+                self.batch.rays_cap
+            )));
+        }
+        // A batch's rays advance in lockstep: when their blocks outnumber the cache's lines, a
+        // block is evicted before all its rays have used it and fetched again. Smaller batches
+        // trade rounds for fetches (docs/ARCHITECTURE.md, The distributed cache).
+        let per_batch = match self.fit_pixels {
+            Some(p) => per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
+            None => per_batch,
+        };
+        self.several_batches |= tiles > per_batch;
+        Ok(RectPlan {
+            tiles,
+            tiles_x,
+            per_batch,
+        })
+    }
+
+    /// The rectangle fields of `Params`.
+    pub(super) fn set_rect(&mut self, rect: Rect, tiles_x: u32) {
+        self.params.tiles_x = tiles_x;
+        (self.params.rect_x, self.params.rect_y) = (rect.x, rect.y);
+        (self.params.rect_w, self.params.rect_h) = (rect.w, rect.h);
     }
 
     /// Ends a frame begun with `begin_frame`: its wall time, and with a cache the distinct

@@ -201,6 +201,7 @@ pub fn summarize(
         s.cache_lines = lines;
         s.cache_map = format!("{map:?}").to_lowercase();
         s.fault_rounds = stats.fault_rounds;
+        s.shared_rounds = stats.shared_rounds;
         s.lookups = stats.lookups;
         s.hits = stats.hits;
         s.misses = stats.misses;
@@ -222,6 +223,7 @@ mod tests {
         FrameStats {
             rounds: 7,
             fault_rounds: 5,
+            shared_rounds: 3,
             lookups: 40,
             hits: 30,
             misses: 10,
@@ -277,6 +279,7 @@ mod tests {
             cache_map: "demarle".into(),
             rounds: 7,
             fault_rounds: 5,
+            shared_rounds: 3,
             lookups: 40,
             hits: 30,
             misses: 10,

@@ -122,11 +122,19 @@ impl Fixture {
     /// (`check_traces`), and with a cache and 2 render ranks or more, that each fetched blocks
     /// over MPI.
     fn check(&self, k: u32, mca: &[&str], cache: Option<&str>, exr: bool) {
-        self.check_with(k, mca, cache, exr, &["--tile", "32", "--min-tile", "8"])
+        self.check_with(k, mca, cache, exr, &["--tile", "32", "--min-tile", "8"]);
     }
 
-    /// `check` with other extra options than small tiles.
-    fn check_with(&self, k: u32, mca: &[&str], cache: Option<&str>, exr: bool, extra: &[&str]) {
+    /// `check` with other extra options than small tiles. Returns the rounds the render ranks'
+    /// frames shared between batches (`shared_rounds` of the frame records).
+    fn check_with(
+        &self,
+        k: u32,
+        mca: &[&str],
+        cache: Option<&str>,
+        exr: bool,
+        extra: &[&str],
+    ) -> u64 {
         let name = format!("k{k}");
         let png = self.dir.path(&format!("{name}.png"));
         let exr_path = self.dir.path(&format!("{name}.exr"));
@@ -181,13 +189,22 @@ impl Fixture {
             let _ = std::fs::remove_file(self.frame(&name, "png", f));
             let _ = std::fs::remove_file(self.frame(&name, "exr", f));
         }
+        let mut shared = 0;
         if k >= 2 {
             let fetched = check_traces(&traces, k, FRAMES, self.size);
             if cache.is_some() && k >= 4 {
                 assert_each_fetched(&fetched, &format!("k={k} {mca:?}"));
             }
+            for f in 0..FRAMES {
+                for r in 0..k {
+                    let v = records(&traces, f, r);
+                    let frame = of(&v, "frame").next().expect("a frame record");
+                    shared += frame["shared_rounds"].as_u64().unwrap_or(0);
+                }
+            }
             std::fs::remove_dir_all(&traces).unwrap();
         }
+        shared
     }
 }
 
@@ -334,6 +351,29 @@ fn six_ranks_over_ucx_with_many_blocks() {
     let fx = Fixture::with("cl-ucx6", 1_000_000, 256, 192);
     for _ in 0..UCX_RUNS {
         fx.check_with(6, UCX, Some("1/8"), false, &[]);
+    }
+}
+
+/// With an associative cache a render rank starts its next tile while the last rays of those in
+/// flight still wait for blocks, and serves their faults together: the frames are those of one
+/// process. (With a cache that holds every borrowed block from the first frame; with 1/8 from
+/// the second, once the first has sized the batches.) Whether a tile is at hand when a round
+/// could start it depends on when the balancer's answers arrive, so that rounds are shared is
+/// checked in one process (`dc::tiles_from_a_source_share_rounds`); here only that they are
+/// not with `--overlap-batches never`.
+#[test]
+fn overlapping_tiles_under_mpirun_match_one_process() {
+    let fx = Fixture::new("cl-overlap");
+    let tiles = ["--tile", "8", "--min-tile", "8", "--cache-map", "lru"];
+    for mca in [SHARED, TCP_PT2PT] {
+        for cache in ["1/1", "1/8"] {
+            let what = format!("{mca:?} {cache}");
+            let n = fx.check_with(4, mca, Some(cache), false, &tiles);
+            eprintln!("{what}: {n} shared rounds");
+            let never = [&tiles[..], &["--overlap-batches", "never"]].concat();
+            let n = fx.check_with(4, mca, Some(cache), false, &never);
+            assert_eq!(n, 0, "{what}");
+        }
     }
 }
 

@@ -4,7 +4,8 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::{FaultMode, OverlapMode, Settings};
+use dcrt::gpu::layout::Pixel;
+use dcrt::gpu::tracer::{FaultMode, Frame, Next, OverlapMode, Rect, RectSource, Settings};
 use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
@@ -303,6 +304,83 @@ fn batches_overlap_where_their_tails_meet() {
         }
     }
     assert!(short_shared > 0, "batches overlap with a short cache");
+}
+
+/// Rectangles handed out one at a time, their pixels put together into a frame.
+struct Tiles {
+    rects: Vec<Rect>,
+    frame: Frame,
+}
+
+impl RectSource for Tiles {
+    fn next(&mut self, _busy: bool) -> dcrt::Result<Next> {
+        Ok(self.rects.pop().map_or(Next::End, Next::Rect))
+    }
+
+    fn done(&mut self, r: Rect, pixels: Vec<Pixel>) -> dcrt::Result<()> {
+        for (i, p) in pixels.into_iter().enumerate() {
+            let (x, y) = (r.x + i as u32 % r.w, r.y + i as u32 / r.w);
+            self.frame.pixels[(y * self.frame.width + x) as usize] = p;
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn tiles_from_a_source_share_rounds() {
+    // A cluster rank's tiles come one at a time: with an lru cache the next starts while the last
+    // rays of those in flight still wait for blocks. The frame is the replicated one, and
+    // rounds were shared (deterministic here: the cache holds every block, nothing is evicted).
+    let gpu = gpu();
+    let (w, h) = (128, 96);
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let basis = camera.basis(w, h);
+    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let o = DcOptions {
+        ranks: 4,
+        rank: 1,
+        cache: CacheSize::parse("1/1").unwrap(),
+        map: CacheMap::Lru,
+    };
+    for overlap_batches in [OverlapMode::Auto, OverlapMode::Never] {
+        let s = Settings {
+            overlap_batches,
+            ..Settings::default()
+        };
+        let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+        let mut stats = t.begin_frame();
+        let rects = (0..h / 16)
+            .flat_map(|y| {
+                (0..w / 16).map(move |x| Rect {
+                    x: x * 16,
+                    y: y * 16,
+                    w: 16,
+                    h: 16,
+                })
+            })
+            .collect();
+        let blank = Frame {
+            width: w,
+            height: h,
+            pixels: vec![Pixel::default(); (w * h) as usize],
+        };
+        let mut tiles = Tiles {
+            rects,
+            frame: blank,
+        };
+        t.render_rects(&basis, [0.1, 0.2, 0.3], &mut tiles, &mut stats)
+            .unwrap();
+        t.end_frame(&mut stats).unwrap();
+        let what = format!("{overlap_batches:?}: {} shared rounds", stats.shared_rounds);
+        eprintln!("{what}");
+        same_pixels(&reference, &tiles.frame, &what);
+        assert_eq!(stats.batches, 48, "{what}");
+        assert_eq!(
+            stats.shared_rounds > 0,
+            overlap_batches == OverlapMode::Auto,
+            "{what}"
+        );
+    }
 }
 
 /// The most blocks on a path from the root to a triangle: the node blocks it passes through, then
