@@ -180,9 +180,14 @@ impl Plan {
                 let mut cmd = self.mpirun(k, t);
                 cmd.args(self.render_args(model, &tag, &stats));
                 if let Some(c) = &cache {
-                    // SIZE or SIZE:MAP, as `--cluster-caches` checked it.
-                    let (size, map) = c.split_once(':').unwrap_or((c, "ize"));
+                    // SIZE[:MAP[:OVERLAP]], as `--cluster-caches` checked it.
+                    let mut parts = c.split(':');
+                    let size = parts.next().unwrap_or(c);
+                    let map = parts.next().unwrap_or("ize");
                     cmd.args(["--cache", size, "--cache-map", map]);
+                    if let Some(o) = parts.next() {
+                        cmd.args(["--overlap-batches", o]);
+                    }
                 }
                 run(&mut cmd, &tag)?;
                 rows.push(cluster_row(

@@ -107,6 +107,10 @@ fn bench_refuses_options_it_cannot_measure() {
             &["--cluster", "--cluster-caches", "none,1/8:fifo"],
             "--cluster-caches 1/8:fifo: no cache mapping \"fifo\"",
         ),
+        (
+            &["--cluster", "--cluster-caches", "1/8:lru:sometimes"],
+            "--cluster-caches 1/8:lru:sometimes: no overlap mode \"sometimes\"",
+        ),
     ] {
         let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];
         all.extend(args.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));

@@ -370,7 +370,8 @@ struct BenchArgs {
     cluster: bool,
     #[arg(long, value_delimiter = ',', default_value = "2,3,4,5,6")]
     ranks: Vec<u32>,
-    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`).
+    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`) and
+    /// `:OVERLAP` for another `--overlap-batches` than `auto` (`1/8:lru:never`).
     #[arg(long, value_delimiter = ',', default_value = "none,1/8")]
     cluster_caches: Vec<String>,
     #[arg(

@@ -5,6 +5,7 @@ use crate::BenchArgs;
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::CacheSize;
+use dcrt::gpu::tracer::OverlapMode;
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
 
@@ -23,11 +24,22 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         .map(|c| match c.as_str() {
             "none" => Ok(None),
             other => {
-                let (size, map) = other.split_once(':').unwrap_or((other, "ize"));
+                let mut parts = other.split(':');
+                let size = parts.next().unwrap_or(other);
                 CacheSize::parse(size)?;
-                <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
-                    anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
-                })?;
+                if let Some(map) = parts.next() {
+                    <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
+                        anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
+                    })?;
+                }
+                if let Some(o) = parts.next() {
+                    <OverlapMode as clap::ValueEnum>::from_str(o, true).map_err(|_| {
+                        anyhow::anyhow!("--cluster-caches {other}: no overlap mode {o:?}")
+                    })?;
+                }
+                if parts.next().is_some() {
+                    bail!("--cluster-caches {other}: SIZE[:MAP[:OVERLAP]]");
+                }
                 Ok(Some(other.to_string()))
             }
         })
