@@ -140,14 +140,7 @@ impl Tracer<'_> {
             if started.is_none() {
                 started = Some(r.started);
             }
-            let mut gpu_ms = None;
-            if b.timestamps.is_some() {
-                let period = f64::from(gpu.queue.get_timestamp_period());
-                let t = r.timestamps;
-                let secs = t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
-                stats.gpu_seconds += secs;
-                gpu_ms = Some(secs * 1e3);
-            }
+            let gpu_ms = self.round_gpu_ms(&r, stats);
             self.check_overflows(&s)?;
             enc = gpu.device.create_command_encoder(&Default::default());
             if self.dc.is_some() {
@@ -165,6 +158,17 @@ impl Tracer<'_> {
                 per_check = (per_check * 2).min(16);
             }
         }
+    }
+
+    /// A round's GPU time from its read-back timestamps, added to the frame's; `None` when the
+    /// adapter has no timestamps.
+    fn round_gpu_ms(&self, r: &RoundReadback, stats: &mut FrameStats) -> Option<f64> {
+        self.batch.timestamps.as_ref()?;
+        let period = f64::from(self.gpu.queue.get_timestamp_period());
+        let t = r.timestamps;
+        let secs = t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
+        stats.gpu_seconds += secs;
+        Some(secs * 1e3)
     }
 
     /// A stack overflow in any ray of a round is an error naming the BVH depth.
@@ -278,12 +282,8 @@ impl Tracer<'_> {
                 let data = gpu.map_read(&self.lane(l).0.readback)?;
                 let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
                 self.check_overflows(&r.stats)?;
-                if Some(&l) == active.first() && self.batch.timestamps.is_some() {
-                    let period = f64::from(gpu.queue.get_timestamp_period());
-                    let t = r.timestamps;
-                    let secs = t[1].saturating_sub(t[0]) as f64 * period * 1e-9;
-                    stats.gpu_seconds += secs;
-                    gpu_ms = Some(secs * 1e3);
+                if Some(&l) == active.first() {
+                    gpu_ms = self.round_gpu_ms(&r, stats);
                 }
                 let run = runs[l].as_mut().expect("an active lane has a batch");
                 run.started.get_or_insert(r.started);

@@ -338,7 +338,7 @@ pub enum FaultMode {
 pub enum OverlapMode {
     /// With an associative cache (`lru`): a new batch's blocks take the lines least recently
     /// used. In a direct-mapped cache they evict, by their place, blocks the last batch's rays
-    /// wait for (measured: 12-17% more fetches).
+    /// wait for (measured: up to 14% more fetches).
     #[default]
     Auto,
     /// With any cache (for measurements).
