@@ -364,7 +364,7 @@ fn six_ranks_over_ucx_with_many_blocks() {
 #[test]
 fn overlapping_tiles_under_mpirun_match_one_process() {
     let fx = Fixture::new("cl-overlap");
-    let tiles = ["--tile", "8", "--min-tile", "8", "--cache-map", "lru"];
+    let tiles = ["--tile", "32", "--min-tile", "8", "--cache-map", "lru"];
     for mca in [SHARED, TCP_PT2PT] {
         for cache in ["1/1", "1/8"] {
             let what = format!("{mca:?} {cache}");
