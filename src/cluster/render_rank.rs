@@ -302,8 +302,12 @@ impl RectSource for RankTiles<'_, '_> {
     }
 
     fn done(&mut self, rect: Rect, pixels: Vec<Pixel>) -> Result<()> {
-        let at = self.handed.iter().position(|(r, _)| *r == rect);
-        let handed = at.map_or(self.last_end, |i| self.handed.swap_remove(i).1);
+        let Some(at) = self.handed.iter().position(|(r, _)| *r == rect) else {
+            return Err(crate::error::Error::Invalid(format!(
+                "the tracer finished tile {rect:?}, which was not handed to it"
+            )));
+        };
+        let handed = self.handed.swap_remove(at).1;
         let encoded = self.rank.packer.encode(&pixels);
         if self.rank.opts.display_bench {
             let key = (rect.x, rect.y, rect.w, rect.h);

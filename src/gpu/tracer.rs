@@ -709,7 +709,6 @@ impl<'g> Tracer<'g> {
         let (tiles, tiles_per_batch) = (plan.tiles, plan.per_batch);
         let sh = self.settings.shading;
         let (fan, waves) = (sh.fan(basis), sh.waves(basis));
-        let mut pixels = vec![Pixel::default(); rect.pixels()];
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
         if self.overlaps(basis) {
             let mut one = OneRect {
@@ -717,8 +716,13 @@ impl<'g> Tracer<'g> {
                 pixels: None,
             };
             self.render_overlapped(basis, background, &mut one, Some(passes), stats)?;
-            return Ok(one.pixels.unwrap_or(pixels));
+            return one.pixels.ok_or_else(|| {
+                Error::Gpu(format!(
+                    "the overlapped batches of {rect:?} ended without its pixels"
+                ))
+            });
         }
+        let mut pixels = vec![Pixel::default(); rect.pixels()];
         let mut first = 0;
         let mut passed = 0u64;
         while first < tiles {

@@ -21,6 +21,15 @@ fn model(g: Generator, triangles: u64) -> (Prepared, Camera) {
     (prepare(model), camera)
 }
 
+/// rm 20k seen at 128x96, more pixels than the small batches and caches of the tests below
+/// hold: the model, the view and its replicated frame.
+fn rm_128x96(gpu: &dcrt::gpu::Gpu) -> (Prepared, dcrt::scene::CameraBasis, Frame) {
+    let (w, h) = (128, 96);
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let (reference, _) = render(gpu, &p, &camera, w, h, Settings::default());
+    (p, camera.basis(w, h), reference)
+}
+
 fn sweep(g: Generator) {
     let gpu = gpu();
     let (p, camera) = model(g, 20_000);
@@ -134,10 +143,8 @@ fn batches_shrink_to_the_blocks_a_cache_holds_and_images_stay_the_same() {
     // shows it, frames are traced in batches of at least 4096 pixels (64 tiles) that come
     // closest to fitting, with the same image.
     let gpu = gpu();
-    let (w, h) = (128, 96);
-    let (p, camera) = model(Generator::Rm, 20_000);
-    let basis = camera.basis(w, h);
-    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let (p, basis, reference) = rm_128x96(&gpu);
+    let (w, h) = (basis.width, basis.height);
     for map in [CacheMap::Ize, CacheMap::Lru] {
         let o = DcOptions {
             ranks: 4,
@@ -232,10 +239,7 @@ fn batches_overlap_where_their_tails_meet() {
     // images are those of the replicated model, the same with overlapping off, and a one-line
     // cache still finishes.
     let gpu = gpu();
-    let (w, h) = (128, 96);
-    let (p, camera) = model(Generator::Rm, 20_000);
-    let basis = camera.basis(w, h);
-    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let (p, basis, reference) = rm_128x96(&gpu);
     let caches = [
         ("1/1", CacheMap::Ize),
         ("1/1", CacheMap::Lru),
@@ -332,10 +336,8 @@ fn tiles_from_a_source_share_rounds() {
     // rays of those in flight still wait for blocks. The frame is the replicated one, and
     // rounds were shared (deterministic here: the cache holds every block, nothing is evicted).
     let gpu = gpu();
-    let (w, h) = (128, 96);
-    let (p, camera) = model(Generator::Rm, 20_000);
-    let basis = camera.basis(w, h);
-    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let (p, basis, reference) = rm_128x96(&gpu);
+    let (w, h) = (basis.width, basis.height);
     let o = DcOptions {
         ranks: 4,
         rank: 1,
