@@ -70,15 +70,12 @@ fn entry_block(e: vec4<u32>) -> u32 {
     return select(tri_loc(e.x).x, node_loc(e.x).x, e.y == 0u);
 }
 
-var<workgroup> wg_steps: atomic<u32>;
-var<workgroup> wg_tris: atomic<u32>;
-var<workgroup> wg_suspended: atomic<u32>;
-var<workgroup> wg_lookups: atomic<u32>;
-var<workgroup> wg_hits: atomic<u32>;
-var<workgroup> wg_misses: atomic<u32>;
-var<workgroup> wg_visits: atomic<u32>;
-var<workgroup> wg_entries: atomic<u32>;
-var<workgroup> wg_tri_entries: atomic<u32>;
+// Each invocation's counts for Stats: (steps, triangle tests, node visits, block entries) at
+// [lid] and (triangle block entries, suspended, cache hits, cache misses) at [WORKGROUP + lid],
+// summed by the first invocation after append_live's barrier. A plain store per invocation:
+// an atomic add per invocation and counter is a locked operation per lane on a CPU driver, and
+// nine of them cost lavapipe about 13% of a replicated frame.
+var<workgroup> wg_counts: array<vec4<u32>, 128>;
 
 // An entry's distance bits for a child the ray misses: above every hit's (a non-negative f32's
 // bits order as the f32 does).
@@ -155,6 +152,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var again = false;
     var ray_index = 0u;
     var parked = false;
+    var counts = vec4(0u);
+    var more_counts = vec4(0u);
     if gid.x < counter_in[0] {
         ray_index = live_in[gid.x];
         // A ray whose block has not arrived only renews its request: no state is read or
@@ -425,33 +424,31 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if r.status == OVERFLOW {
             atomicAdd(&stats.overflows, 1u);
         }
-        atomicAdd(&wg_steps, iters);
-        atomicAdd(&wg_visits, visits);
-        atomicAdd(&wg_entries, entries);
-        atomicAdd(&wg_tri_entries, tri_entries);
-        atomicAdd(&wg_tris, tests);
-        if suspended {
-            atomicAdd(&wg_suspended, 1u);
-        }
-        if DC {
-            atomicAdd(&wg_lookups, dc_lookups);
-            atomicAdd(&wg_hits, dc_hits);
-            atomicAdd(&wg_misses, dc_misses);
-        }
+        counts = vec4(iters, tests, visits, entries);
+        more_counts = vec4(tri_entries, u32(suspended), dc_hits, dc_misses);
     }
-    // The barrier in append_live also orders the workgroup's sums before they are read.
+    wg_counts[lid] = counts;
+    wg_counts[WORKGROUP + lid] = more_counts;
+    // The barrier in append_live also orders the counts before they are read.
     append_live(again, lid, ray_index);
     if lid == 0u {
-        atomicAdd(&stats.steps, atomicLoad(&wg_steps));
-        atomicAdd(&stats.tri_tests, atomicLoad(&wg_tris));
-        atomicAdd(&stats.suspended, atomicLoad(&wg_suspended));
-        atomicAdd(&stats.node_visits, atomicLoad(&wg_visits));
-        atomicAdd(&stats.block_entries, atomicLoad(&wg_entries));
-        atomicAdd(&stats.tri_block_entries, atomicLoad(&wg_tri_entries));
+        var a = vec4(0u);
+        var b = vec4(0u);
+        for (var i = 0u; i < WORKGROUP; i++) {
+            a += wg_counts[i];
+            b += wg_counts[WORKGROUP + i];
+        }
+        atomicAdd(&stats.steps, a.x);
+        atomicAdd(&stats.tri_tests, a.y);
+        atomicAdd(&stats.node_visits, a.z);
+        atomicAdd(&stats.block_entries, a.w);
+        atomicAdd(&stats.tri_block_entries, b.x);
+        atomicAdd(&stats.suspended, b.y);
         if DC {
-            atomicAdd(&stats.lookups, atomicLoad(&wg_lookups));
-            atomicAdd(&stats.hits, atomicLoad(&wg_hits));
-            atomicAdd(&stats.misses, atomicLoad(&wg_misses));
+            // Every lookup of a borrowed block is a hit or a miss.
+            atomicAdd(&stats.lookups, b.z + b.w);
+            atomicAdd(&stats.hits, b.z);
+            atomicAdd(&stats.misses, b.w);
         }
     }
 }

@@ -27,7 +27,6 @@ struct Faults {
 @group(0) @binding(9) var<storage, read_write> line_used: array<u32>;
 
 // Per invocation, summed into Stats by the trace kernel.
-var<private> dc_lookups: u32 = 0u;
 var<private> dc_hits: u32 = 0u;
 var<private> dc_misses: u32 = 0u;
 
@@ -62,7 +61,6 @@ fn lookup(k: u32) -> u32 {
     if row < params.dc_cache_row {
         return row;  // owned, or the replicated root
     }
-    dc_lookups += 1u;
     if row != NONE {
         dc_hits += 1u;
         line_used[row - params.dc_cache_row] = 1u;
