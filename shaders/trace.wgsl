@@ -398,28 +398,35 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let hit_b = closest.b;
             let tri = tri_at(hit_row, hit_slot);
             let n = unit_normal(tri);
-            r.nx = n.x;
-            r.ny = n.y;
-            r.nz = n.z;
+            rays[ray_index].nx = n.x;
+            rays[ray_index].ny = n.y;
+            rays[ray_index].nz = n.z;
             let p = hit_point(tri, hit_b);
-            r.hx = p.x;
-            r.hy = p.y;
-            r.hz = p.z;
+            rays[ray_index].hx = p.x;
+            rays[ray_index].hy = p.y;
+            rays[ray_index].hz = p.z;
             // Past the point's error along the normal, and along any normal the exact one may
             // be (a sliver's computed normal is off by up to a radian).
             let e = hit_point_error(tri, hit_b);
-            r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
-            r.prim = prim_id_at(hit_row, hit_slot);
-            r.b1 = hit_b.y;
-            r.b2 = hit_b.z;
+            rays[ray_index].herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
+            rays[ray_index].prim = prim_id_at(hit_row, hit_slot);
+            rays[ray_index].b1 = hit_b.y;
+            rays[ray_index].b2 = hit_b.z;
         }
         if !valid {
             r.status = OUTSIDE;
         }
-        r.cur_index = cur.x;
-        r.cur_count = cur.y;
-        r.steps += iters;
-        rays[ray_index] = r;
+        // Only the members traversal changes are stored (the hit's above): the origin and
+        // direction never change, and a CPU driver stores each member lane by lane.
+        rays[ray_index].t = r.t;
+        rays[ray_index].hit = r.hit;
+        rays[ray_index].sp = r.sp;
+        rays[ray_index].status = r.status;
+        rays[ray_index].steps = r.steps + iters;
+        rays[ray_index].cur_index = cur.x;
+        rays[ray_index].cur_count = cur.y;
+        rays[ray_index].wait_block = r.wait_block;
+        rays[ray_index].flags = r.flags;
         again = r.status == LIVE;
         if r.status == OVERFLOW {
             atomicAdd(&stats.overflows, 1u);
