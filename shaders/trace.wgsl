@@ -296,7 +296,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
                     cur_t = e0.z;
-                } else {
+                }
+                // A leaf's first triangle is tested in the iteration that visited its node: a CPU
+                // driver runs both parts in every iteration anyway, so this saves iterations.
+                if cur.y != 0u && cur.y != NONE {
                     // One triangle of a leaf per iteration, the rest kept as the current entry: a
                     // loop over the leaf would run, in every lane, as often as the longest leaf
                     // among them. A fault on a leaf that spans two blocks keeps the untested rest, so
