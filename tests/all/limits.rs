@@ -111,6 +111,15 @@ fn bench_refuses_options_it_cannot_measure() {
             &["--cluster", "--cluster-caches", "1/8:lru:sometimes"],
             "--cluster-caches 1/8:lru:sometimes: no overlap mode \"sometimes\"",
         ),
+        (
+            &["--cluster", "--copy-threads", "1,x"],
+            "\"x\" is not a count",
+        ),
+        // An empty list is taken (it skips the display benchmark): the refusal is the frames'.
+        (
+            &["--cluster", "--copy-threads", "", "--frames", "1"],
+            "--frames must be at least 2",
+        ),
     ] {
         let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];
         all.extend(args.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));

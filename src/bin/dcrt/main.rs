@@ -381,9 +381,10 @@ struct BenchArgs {
         default_value = "shm,tcp-pt2pt,ucx"
     )]
     transports: Vec<dcrt::cluster::bench::Transport>,
-    /// Copy-thread counts of the display benchmark (an HD frame); empty skips it.
-    #[arg(long, value_delimiter = ',', default_value = "1,2,3,4")]
-    copy_threads: Vec<u32>,
+    /// Copy-thread counts of the display benchmark (an HD frame), comma separated; an empty
+    /// list ("") skips it.
+    #[arg(long, value_parser = counts, default_value = "1,2,3,4")]
+    copy_threads: Counts,
     #[arg(long, default_value_t = 4)]
     display_ranks: u32,
     #[arg(long, default_value_t = 60)]
@@ -400,6 +401,24 @@ struct BenchArgs {
     figures: Option<PathBuf>,
     #[command(flatten)]
     gpu: GpuArgs,
+}
+
+/// A comma-separated list of counts, possibly empty (`--copy-threads ""`).
+#[derive(Clone, Debug)]
+struct Counts(Vec<u32>);
+
+fn counts(s: &str) -> std::result::Result<Counts, String> {
+    if s.trim().is_empty() {
+        return Ok(Counts(Vec::new()));
+    }
+    s.split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<u32>()
+                .map_err(|e| format!("{c:?} is not a count: {e}"))
+        })
+        .collect::<std::result::Result<Vec<u32>, String>>()
+        .map(Counts)
 }
 
 fn main() -> ExitCode {

@@ -85,7 +85,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         frames: a.frames,
         width: a.width,
         height: a.height,
-        copy_threads: a.copy_threads.clone(),
+        copy_threads: a.copy_threads.0.clone(),
         display_ranks: a.display_ranks,
         timeout_seconds: 600,
     };
@@ -101,7 +101,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         ..plan
     };
     let display = match models.first() {
-        Some((_, m)) if !a.copy_threads.is_empty() => display_plan.display(m)?,
+        Some((_, m)) if !a.copy_threads.0.is_empty() => display_plan.display(m)?,
         _ => Vec::new(),
     };
     drop(work);

@@ -310,7 +310,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         });
     }
     if let Some(dcb) = display_model
-        && !a.copy_threads.is_empty()
+        && !a.copy_threads.0.is_empty()
     {
         let plan = Plan {
             exe: exe.clone(),
@@ -322,7 +322,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
             frames: a.display_frames,
             width: 1920,
             height: 1080,
-            copy_threads: a.copy_threads.clone(),
+            copy_threads: a.copy_threads.0.clone(),
             display_ranks: a.display_ranks,
             timeout_seconds: 600,
         };
