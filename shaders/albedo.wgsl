@@ -17,7 +17,7 @@
 override ATTRS_PER_BLOCK: u32 = 2048u;
 override ATTR_WORDS: u32 = 1u;
 
-@group(1) @binding(0) var<storage, read> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read> rays: array<RayGroups>;
 // xyz the albedo, w 1 once resolved (the host clears the buffer before the first dispatch).
 @group(1) @binding(4) var<storage, read_write> albedos: array<vec4<f32>>;
 
@@ -31,7 +31,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if albedos[j].w != 0.0 {
         return;
     }
-    let r = rays[j];
+    let r = ray_state(rays[j]);
     if r.hit == NONE || r.status != DONE {
         return;
     }

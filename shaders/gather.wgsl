@@ -9,7 +9,7 @@
 #import shading
 #import sampling
 
-@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
@@ -34,7 +34,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let base = i * fan;
     if MODE == MODE_SHADOWS {
         for (var k = 0u; k < fan; k++) {
-            let r = rays[base + k];
+            let r = ray_state(rays[base + k]);
             if unoccluded(r) {
                 let l = shading.lights[k];
                 var e = l.color.xyz;
@@ -48,7 +48,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else if MODE == MODE_AO {
         var open = 0u;
         for (var k = 0u; k < fan; k++) {
-            open += u32(unoccluded(rays[base + k]));
+            open += u32(unoccluded(ray_state(rays[base + k])));
         }
         path.l = vec3(f32(open) / f32(fan));
         path.alive = 0u;
@@ -56,13 +56,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var kb = 0u;
         if shading.sun.w != 0.0 {
             kb = 1u;
-            let s = rays[base];
+            let s = ray_state(rays[base]);
             if unoccluded(s) {
                 let cos_s = dot(shading.sun_dir.xyz, path.n);
                 path.l += path.tp * path.albedo * (1.0 / PI) * shading.sun.xyz * cos_s;
             }
         }
-        let r = rays[base + kb];
+        let r = ray_state(rays[base + kb]);
         // Cosine-weighted sampling: the Lambertian BRDF times cosine over the pdf is the albedo.
         path.tp *= path.albedo;
         if r.status != DONE {

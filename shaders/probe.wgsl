@@ -10,7 +10,7 @@
 #import scene
 #import shading
 
-@group(1) @binding(0) var<storage, read> probe_rays: array<RayState>;
+@group(1) @binding(0) var<storage, read> probe_rays: array<RayGroups>;
 @group(1) @binding(1) var<storage, read_write> out: array<u32>;
 @group(1) @binding(2) var<storage, read> probe_shading: ShadeParams;
 
@@ -66,7 +66,7 @@ fn main() {
         put(prim_id_at(locate(l.x), l.y));
     }
     for (var i = 0u; i < 2u; i++) {
-        let r = probe_rays[i];
+        let r = ray_state(probe_rays[i]);
         putf(r.ox); putf(r.oy); putf(r.oz); putf(r.t);
         putf(r.dx); putf(r.dy); putf(r.dz); put(r.hit);
         put(r.sp); put(r.status); put(r.steps);
@@ -74,7 +74,7 @@ fn main() {
         putf(r.nx); putf(r.ny); putf(r.nz);
         put(r.wait_block); put(r.flags);
         putf(r.hx); putf(r.hy); putf(r.hz); putf(r.herr);
-        putf(r.b1); putf(r.b2); put(r.skip);
+        putf(r.b1); putf(r.b2); put(r.skip); put(r.pad0); put(r.pad1);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];

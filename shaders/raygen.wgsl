@@ -12,7 +12,7 @@
 #import intersect
 #import sampling
 
-@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 
 fn finite3(v: vec3<f32>) -> bool {
     // Exponent bits all set means inf or NaN; checked on the bits, not with IEEE comparisons.
@@ -59,7 +59,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         } else {
             live = true;
         }
-        rays[i] = r;
+        rays[i] = ray_groups(r);
     }
     append_live(live, lid, i);
 }

@@ -9,7 +9,7 @@
 #import shading
 #import tiles
 
-@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
@@ -25,7 +25,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i >= params.batch_rays {
         return;
     }
-    let r = rays[i];
+    let r = ray_state(rays[i]);
     let hit = r.hit != NONE && r.status == DONE;
     var p = pixels[i];
     if (params.flags & FIRST_SAMPLE) != 0u {

@@ -10,7 +10,7 @@
 #import offset
 #import queue
 
-@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
 @group(1) @binding(3) var<storage, read> shading: ShadeParams;
@@ -67,7 +67,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 live = true;
             }
         }
-        rays[j] = r;
+        rays[j] = ray_groups(r);
     }
     append_live(live, lid, j);
 }

@@ -14,7 +14,7 @@
 #import queue
 #import offset
 
-@group(1) @binding(0) var<storage, read_write> rays: array<RayState>;
+@group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 // Per ray `stack_size` entries, each a child as its parent's slot gives it (node `index` when
 // `count` is 0, else `count` triangles from `index`) and its entry distance, packed in 8 bytes
 // (pack_entry): half the memory of a plain (index, count, distance) entry lets a batch hold
@@ -159,7 +159,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // A ray whose block has not arrived only renews its request: no state is read or
         // written, which makes a round with many waiting rays cheap.
         if DC {
-            let wb = rays[ray_index].wait_block;
+            let wb = rays[ray_index].g[4].y;
             if wb != NONE && block_rows[wb] == NONE {
                 request(wb);
                 parked = true;
@@ -168,7 +168,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
     }
     if gid.x < counter_in[0] && !parked {
-        var r = rays[ray_index];
+        var r = ray_state(rays[ray_index]);
         r.wait_block = NONE;
         // A ray with NaN, infinite or zero inputs ends at once as a miss, whoever made it.
         let valid = ray_valid(r);
@@ -401,35 +401,39 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let hit_b = closest.b;
             let tri = tri_at(hit_row, hit_slot);
             let n = unit_normal(tri);
-            rays[ray_index].nx = n.x;
-            rays[ray_index].ny = n.y;
-            rays[ray_index].nz = n.z;
+            r.nx = n.x;
+            r.ny = n.y;
+            r.nz = n.z;
             let p = hit_point(tri, hit_b);
-            rays[ray_index].hx = p.x;
-            rays[ray_index].hy = p.y;
-            rays[ray_index].hz = p.z;
+            r.hx = p.x;
+            r.hy = p.y;
+            r.hz = p.z;
             // Past the point's error along the normal, and along any normal the exact one may
             // be (a sliver's computed normal is off by up to a radian).
             let e = hit_point_error(tri, hit_b);
-            rays[ray_index].herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
-            rays[ray_index].prim = prim_id_at(hit_row, hit_slot);
-            rays[ray_index].b1 = hit_b.y;
-            rays[ray_index].b2 = hit_b.z;
+            r.herr = offset_distance(n, e) + normal_error(tri) * (e.x + e.y + e.z);
+            r.prim = prim_id_at(hit_row, hit_slot);
+            r.b1 = hit_b.y;
+            r.b2 = hit_b.z;
         }
         if !valid {
             r.status = OUTSIDE;
         }
-        // Only the members traversal changes are stored (the hit's above): the origin and
-        // direction never change, and a CPU driver stores each member lane by lane.
-        rays[ray_index].t = r.t;
-        rays[ray_index].hit = r.hit;
-        rays[ray_index].sp = r.sp;
-        rays[ray_index].status = r.status;
-        rays[ray_index].steps = r.steps + iters;
-        rays[ray_index].cur_index = cur.x;
-        rays[ray_index].cur_count = cur.y;
-        rays[ray_index].wait_block = r.wait_block;
-        rays[ray_index].flags = r.flags;
+        // Only the groups traversal changes are stored: the origin and direction never change,
+        // and a CPU driver stores each group lane by lane.
+        r.steps += iters;
+        r.cur_index = cur.x;
+        r.cur_count = cur.y;
+        let w = ray_groups(r);
+        rays[ray_index].g[0].w = w.g[0].w;
+        rays[ray_index].g[1].w = w.g[1].w;
+        rays[ray_index].g[2] = w.g[2];
+        rays[ray_index].g[3] = w.g[3];
+        rays[ray_index].g[4] = w.g[4];
+        if closest.found {
+            rays[ray_index].g[5] = w.g[5];
+            rays[ray_index].g[6] = w.g[6];
+        }
         again = r.status == LIVE;
         if r.status == OVERFLOW {
             atomicAdd(&stats.overflows, 1u);

@@ -41,6 +41,44 @@ struct RayState {
     // plane once), or NONE: skipping it saves proving, in extended precision, that its hit lies
     // behind the origin.
     skip: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+// A RayState as the rays buffer holds it: seven 16-byte groups of its words in member order
+// (the host's gpu::layout::RayState). Kernels bind `array<RayGroups>` and load and store whole
+// groups: a CPU driver moves every member of a buffer load or store in a loop over the lanes of
+// its own, so a group moves four members in one loop where members would take four.
+struct RayGroups {
+    g: array<vec4<u32>, 7>,
+}
+
+fn ray_state(w: RayGroups) -> RayState {
+    let a = w.g[0];
+    let b = w.g[1];
+    let c = w.g[2];
+    let d = w.g[3];
+    let e = w.g[4];
+    let f = bitcast<vec4<f32>>(w.g[5]);
+    let g = w.g[6];
+    let af = bitcast<vec4<f32>>(a);
+    let bf = bitcast<vec4<f32>>(b);
+    let df = bitcast<vec4<f32>>(d);
+    let ef = bitcast<vec4<f32>>(e);
+    return RayState(af.x, af.y, af.z, af.w, bf.x, bf.y, bf.z, b.w, c.x, c.y, c.z, c.w, d.x, d.y,
+                    df.z, df.w, ef.x, e.y, e.z, ef.w, f.x, f.y, f.z, f.w, bitcast<f32>(g.x), g.y,
+                    g.z, g.w);
+}
+
+fn ray_groups(r: RayState) -> RayGroups {
+    return RayGroups(array(
+        bitcast<vec4<u32>>(vec4(r.ox, r.oy, r.oz, r.t)),
+        vec4(bitcast<vec3<u32>>(vec3(r.dx, r.dy, r.dz)), r.hit),
+        vec4(r.sp, r.status, r.steps, r.cur_index),
+        vec4(r.cur_count, r.prim, bitcast<u32>(r.nx), bitcast<u32>(r.ny)),
+        vec4(bitcast<u32>(r.nz), r.wait_block, r.flags, bitcast<u32>(r.hx)),
+        bitcast<vec4<u32>>(vec4(r.hy, r.hz, r.herr, r.b1)),
+        vec4(bitcast<u32>(r.b2), r.skip, r.pad0, r.pad1)));
 }
 
 // RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
@@ -53,7 +91,7 @@ const FROM_CAMERA: u32 = 2u;
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32, skip: u32)
     -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
-                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, skip);
+                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, skip, 0u, 0u);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

@@ -110,8 +110,9 @@ pub struct RayState {
     pub b2: f32,
     /// The triangle (BVH order) a secondary ray leaves and skips, or `NONE`.
     pub skip: u32,
+    pub pad: [u32; 2],
 }
-const _: () = assert!(std::mem::size_of::<RayState>() == 104);
+const _: () = assert!(std::mem::size_of::<RayState>() == 112);
 
 /// `RayState.status` values.
 pub mod status {

@@ -136,6 +136,7 @@ fn every_member_reads_back_through_the_shader() {
             b1: 25.5,
             b2: 26.5,
             skip: 27,
+            pad: [28, 29],
         },
         RayState {
             origin: [-1.0, -2.0, -3.0],
@@ -156,6 +157,7 @@ fn every_member_reads_back_through_the_shader() {
             b1: 0.25,
             b2: 0.5,
             skip: u32::MAX,
+            pad: [90, 91],
         },
     ];
     let out = tracer.probe(params, &rays, &shading).unwrap();
@@ -229,7 +231,7 @@ fn host_structs_match_naga_layouts() {
         "cur_count" => cur_count, "prim" => prim, "nx" => normal, "ny" => normal + 4,
         "nz" => normal + 8, "wait_block" => wait_block, "flags" => flags,
         "hx" => hit_point, "hy" => hit_point + 4, "hz" => hit_point + 8, "herr" => hit_error,
-        "b1" => b1, "b2" => b2, "skip" => skip,
+        "b1" => b1, "b2" => b2, "skip" => skip, "pad0" => pad, "pad1" => pad + 4,
     });
     sized(w, size_of::<RayState>());
     let w = same_layout!(MeshInfo, "MeshInfo", {
