@@ -243,17 +243,29 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     cur = e.xy;
                     cur_t = e.z;
                 }
-                if cur.y == 0u {
-                    let l = node_loc(cur.x);
-                    let row = lookup(l.x);
-                    if DC && row == NONE {
-                        fault_block = l.x;
-                        break;
-                    }
+                // One block lookup and four texel fetches an iteration, for a node (four texels)
+                // or a triangle (three): a CPU driver runs both parts of the loop in every
+                // iteration whichever its lanes take, so the node and the triangle share them.
+                let node = cur.y == 0u;
+                let nl = node_loc(cur.x);
+                let tl = tri_loc(cur.x);
+                let k = select(tl.x, nl.x, node);
+                let row = lookup(k);
+                if DC && row == NONE {
+                    fault_block = k;
+                    break;
+                }
+                let tt = tri_texel(tl.y);
+                let t0 = select(tt.x, nl.y * 4u, node);
+                let ta = texel(row, t0);
+                let tb = texel(row, t0 + 1u);
+                let tc = texel(row, t0 + 2u);
+                let td = texel(row, t0 + 3u);
+                if node {
                     visits += 1u;
-                    entries += u32(l.x != last_block);
-                    last_block = l.x;
-                    let n = node_at(row, l.y);
+                    entries += u32(k != last_block);
+                    last_block = k;
+                    let n = node_of(ta, tb, tc, td);
                     let step = node_step(n);
                     // Inner children are adjacent from child_base, leaves' triangles from tri_base,
                     // both in slot order.
@@ -296,25 +308,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
                     cur_t = e0.z;
-                }
-                // A leaf's first triangle is tested in the iteration that visited its node: a CPU
-                // driver runs both parts in every iteration anyway, so this saves iterations.
-                if cur.y != 0u && cur.y != NONE {
+                } else {
                     // One triangle of a leaf per iteration, the rest kept as the current entry: a
                     // loop over the leaf would run, in every lane, as often as the longest leaf
                     // among them. A fault on a leaf that spans two blocks keeps the untested rest, so
                     // a resumed ray never needs the first block again (with one cache line it would
                     // evict the second).
-                    let l = tri_loc(cur.x);
-                    let row = lookup(l.x);
-                    if DC && row == NONE {
-                        fault_block = l.x;
-                        break;
-                    }
                     tests += 1u;
-                    tri_entries += u32(l.x != last_tri_block);
-                    last_tri_block = l.x;
-                    let tri = tri_at(row, l.y);
+                    tri_entries += u32(k != last_tri_block);
+                    last_tri_block = k;
+                    let tri = tri_of(ta, tb, tc, tt.y);
                     var th = NO_HIT;
                     if cur.x != r.skip {
                         th = intersect(tri, org, sh, r.t);
@@ -324,11 +327,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     if th.t == UNRESOLVED_T {
                         pending = true;
                         pending_row = row;
-                        pending_slot = l.y;
+                        pending_slot = tl.y;
                         pending_index = index;
                         break;
                     }
-                    if th.t > 0.0 && take_hit(&r, &closest, th, index, row, l.y) {
+                    if th.t > 0.0 && take_hit(&r, &closest, th, index, row, tl.y) {
                         cur.y = NONE;
                         break;
                     }

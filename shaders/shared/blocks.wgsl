@@ -37,14 +37,20 @@ fn word_at(row: u32, w: u32) -> u32 {
     return select(select(t.w, t.z, c == 2u), select(t.y, t.x, c == 0u), c < 2u);
 }
 
-fn tri_at(row: u32, slot: u32) -> Tri {
-    // The 9 words of a triangle always span exactly 3 texels, starting at word offset o.
+// The first texel of triangle `slot` and the word its 9 words start at within it: they always
+// span exactly 3 texels.
+fn tri_texel(slot: u32) -> vec2<u32> {
     let w = slot * 9u;
-    let t0 = w / 4u;
-    let o = w % 4u;
-    let a = texel(row, t0);
-    let b = texel(row, t0 + 1u);
-    let c = texel(row, t0 + 2u);
+    return vec2(w / 4u, w % 4u);
+}
+
+fn tri_at(row: u32, slot: u32) -> Tri {
+    let t = tri_texel(slot);
+    return tri_of(texel(row, t.x), texel(row, t.x + 1u), texel(row, t.x + 2u), t.y);
+}
+
+// The triangle in texels a, b and c from word o of a.
+fn tri_of(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, o: u32) -> Tri {
     var v: vec3<f32>;
     var e: vec3<f32>;
     var f: vec3<f32>;
