@@ -377,7 +377,7 @@ impl DcbFile {
 
 impl DcbFile {
     /// What one rank keeps on its GPU without the cache, and the only blocks it reads: its own
-    /// blocks by slot, then the root block unless it owns it.
+    /// blocks by slot, then the replicated blocks it does not own.
     pub fn read_resident(&self, ranks: crate::dc::Ranks) -> Result<Vec<u32>> {
         let bw = self.format.words() as usize;
         let rows = ranks.resident_rows(self.count());

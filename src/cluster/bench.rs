@@ -180,13 +180,16 @@ impl Plan {
                 let mut cmd = self.mpirun(k, t);
                 cmd.args(self.render_args(model, &tag, &stats));
                 if let Some(c) = &cache {
-                    // SIZE[:MAP[:OVERLAP]], as `--cluster-caches` checked it.
+                    // SIZE[:MAP[:OVERLAP[:REPLICATE]]], as `--cluster-caches` checked it.
                     let mut parts = c.split(':');
                     let size = parts.next().unwrap_or(c);
                     let map = parts.next().unwrap_or("ize");
                     cmd.args(["--cache", size, "--cache-map", map]);
                     if let Some(o) = parts.next() {
                         cmd.args(["--overlap-batches", o]);
+                    }
+                    if let Some(r) = parts.next() {
+                        cmd.args(["--replicate-blocks", r]);
                     }
                 }
                 run(&mut cmd, &tag)?;

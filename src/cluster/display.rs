@@ -202,7 +202,7 @@ impl<'a> Display<'a> {
             let all = json!({
                 "ranks": roles.size, "render_ranks": roles.render_ranks(),
                 "width": image.width, "height": image.height,
-                "cache": opts.cache.map(|(c, m)| format!("{c:?} {m:?}")),
+                "cache": opts.cache.map(|c| format!("{:?} {:?} {:?}", c.size, c.map, c.replicate)),
                 "frames": self.report, "display_bench": bench,
             });
             output::write_bytes(path, all.to_string().as_bytes())?;

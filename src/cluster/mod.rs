@@ -39,7 +39,7 @@ mod startup;
 
 use crate::blocks::Format;
 use crate::bvh::Preset;
-use crate::dc::{CacheMap, CacheSize};
+use crate::dc::{CacheMap, CacheSize, Replicate};
 use crate::error::{Error, Result};
 use crate::gpu::tracer::Settings;
 use crate::output::Aov;
@@ -103,6 +103,14 @@ impl Roles {
     }
 }
 
+/// A cluster's distributed cache: its size, mapping, and what every rank replicates.
+#[derive(Clone, Copy, Debug)]
+pub struct CacheOptions {
+    pub size: CacheSize,
+    pub map: CacheMap,
+    pub replicate: Replicate,
+}
+
 /// Everything a cluster render needs, as the command line gave it.
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -122,8 +130,8 @@ pub struct Options {
     pub shade: Overrides,
     pub preset: Preset,
     pub format: Format,
-    /// The distributed cache's size and mapping; `None` replicates the model on every rank.
-    pub cache: Option<(CacheSize, CacheMap)>,
+    /// The distributed cache; `None` replicates the model on every rank.
+    pub cache: Option<CacheOptions>,
     /// Threads the display copies pixels with.
     pub copy_threads: u32,
     /// Side of the balancer's large tiles, and of the smallest it splits them into.

@@ -82,13 +82,14 @@ pub fn run(
             let window = rma::Window::create(comm, &resident[..owned * bw])?;
             let lines = size.lines(loaded.block_count(), format.block_bytes);
             eprintln!(
-                "rank {rank} (render {} of {}): {:.1} MiB resident ({} own blocks + root), \
+                "rank {rank} (render {} of {}): {:.1} MiB resident ({} own blocks + {} replicated), \
                  {:.1} MiB exposed to the others, {:.1} MiB cache ({lines} lines, {map:?}) of a \
                  {:.1} MiB model",
                 ranks.rank,
                 ranks.n,
                 mib((resident.len() * 4) as u64),
                 owned,
+                resident.len() / bw - owned,
                 mib(window.exposed_bytes()),
                 mib(u64::from(lines) * u64::from(format.block_bytes)),
                 mib(loaded.model_bytes())

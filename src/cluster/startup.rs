@@ -172,9 +172,10 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             None
         }
         None => None,
-        Some((size, map)) => {
-            let ranks = Ranks::new(roles.render_ranks(), index)?;
-            Some((ranks, loaded.resident(ranks)?, size, map))
+        Some(c) => {
+            let ranks = Ranks::new(roles.render_ranks(), index)?
+                .replicating(c.replicate.blocks(loaded.node_blocks()));
+            Some((ranks, loaded.resident(ranks)?, c.size, c.map))
         }
     };
     let fingerprint = loaded.fingerprint();

@@ -24,21 +24,58 @@ pub enum CacheMap {
     Lru,
 }
 
-/// This rank's place among the render ranks.
+/// Which blocks every rank holds besides its own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Replicate {
+    /// The root block alone: every ray starts without a fault.
+    #[default]
+    Root,
+    /// Every node block (the BVH, about a sixth of a model): only triangle and attribute blocks
+    /// fault, so a ray waits for one block level instead of one per treelet on its path.
+    Nodes,
+}
+
+impl Replicate {
+    /// How many of the first block ids are on every rank, for a model of `node_blocks` node
+    /// blocks.
+    pub fn blocks(self, node_blocks: u32) -> u32 {
+        match self {
+            Replicate::Root => 1,
+            Replicate::Nodes => node_blocks.max(1),
+        }
+    }
+}
+
+/// This rank's place among the render ranks, and the blocks every rank holds: ids below
+/// `replicated` (the root block, or every node block: `Replicate`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Ranks {
     pub n: u32,
     pub rank: u32,
+    pub replicated: u32,
 }
 
 impl Ranks {
+    /// Rank `rank` of `n`, with the root block replicated.
     pub fn new(n: u32, rank: u32) -> Result<Ranks> {
         if n == 0 || rank >= n {
             return Err(Error::Invalid(format!(
                 "rank {rank} of {n} render ranks: need 0 <= rank < ranks"
             )));
         }
-        Ok(Ranks { n, rank })
+        Ok(Ranks {
+            n,
+            rank,
+            replicated: 1,
+        })
+    }
+    /// The same rank with blocks `0..replicated` on every rank (at least the root).
+    pub fn replicating(self, replicated: u32) -> Ranks {
+        Ranks {
+            replicated: replicated.max(1),
+            ..self
+        }
     }
     pub fn owner(&self, k: u32) -> u32 {
         k % self.n
@@ -54,23 +91,32 @@ impl Ranks {
     pub fn owned(&self, count: u32) -> u32 {
         count.saturating_sub(self.rank).div_ceil(self.n)
     }
-    /// Whether block `k` is on this rank's GPU without the cache: owned or the replicated root.
+    /// Whether block `k` is on this rank's GPU without the cache: owned or replicated.
     pub fn resident(&self, k: u32) -> bool {
-        k == 0 || self.owns(k)
+        k < self.replicated || self.owns(k)
     }
 
     // The resident rows of a rank's GPU, for a model of `count` blocks: its own blocks by slot,
-    // then the replicated root block (block 0) unless the rank owns it. The cache lines follow.
+    // then the replicated blocks it does not own, in id order. The cache lines follow.
 
-    /// Resident rows: owned blocks, plus the root when borrowed.
+    /// The replicated blocks of a model of `count` blocks (never more than it has).
+    fn replicated_of(&self, count: u32) -> u32 {
+        self.replicated.min(count)
+    }
+
+    /// Resident rows: owned blocks, plus the replicated ones borrowed.
     pub fn resident_rows(&self, count: u32) -> u32 {
-        self.owned(count) + u32::from(!self.owns(0))
+        let r = self.replicated_of(count);
+        self.owned(count) + r - self.owned(r)
     }
 
     /// The block in each resident row, in row order.
     pub fn resident_blocks(&self, count: u32) -> impl Iterator<Item = u32> + use<> {
-        let root = (!self.owns(0)).then_some(0);
-        (self.rank..count).step_by(self.n as usize).chain(root)
+        let me = *self;
+        let replicated = (0..self.replicated_of(count)).filter(move |&k| !me.owns(k));
+        (self.rank..count)
+            .step_by(self.n as usize)
+            .chain(replicated)
     }
 
     /// The row of the root block.
@@ -78,12 +124,13 @@ impl Ranks {
         if self.owns(0) { 0 } else { self.owned(count) }
     }
 
-    /// The row of block `k` without the cache: its slot when owned, the root's row, or `None`.
+    /// The row of block `k` without the cache: its slot when owned, its row among the borrowed
+    /// replicated blocks, or `None`.
     pub fn resident_row(&self, k: u32, count: u32) -> Option<u32> {
         if self.owns(k) {
             Some(self.slot(k))
-        } else if k == 0 {
-            Some(self.root_row(count))
+        } else if k < self.replicated_of(count) {
+            Some(self.owned(count) + k - self.owned(k))
         } else {
             None
         }
@@ -248,6 +295,46 @@ mod tests {
         assert_eq!(r0.resident_row(0, 10), Some(0));
         assert_eq!(r0.resident_row(9, 10), Some(3));
         assert_eq!(r0.resident_blocks(10).collect::<Vec<_>>(), [0, 3, 6, 9]);
+    }
+
+    #[test]
+    fn replicated_blocks_follow_the_own_ones_in_id_order() {
+        // Rank 1 of 3, 10 blocks, 5 replicated: owns 1, 4, 7 at rows 0..3; 0, 2, 3 follow.
+        let r = Ranks::new(3, 1).unwrap().replicating(5);
+        assert_eq!(r.resident_rows(10), 6);
+        assert_eq!(
+            r.resident_blocks(10).collect::<Vec<_>>(),
+            [1, 4, 7, 0, 2, 3]
+        );
+        assert_eq!(r.root_row(10), 3);
+        let rows: Vec<Option<u32>> = (0..10).map(|k| r.resident_row(k, 10)).collect();
+        let want = [
+            Some(3),
+            Some(0),
+            Some(4),
+            Some(5),
+            Some(1),
+            None,
+            None,
+            Some(2),
+            None,
+            None,
+        ];
+        assert_eq!(rows, want);
+        assert!((0..5).all(|k| r.resident(k)) && !r.resident(5));
+        // Every row is named once, and each block's row is where `resident_blocks` puts it.
+        for (row, k) in r.resident_blocks(10).enumerate() {
+            assert_eq!(r.resident_row(k, 10), Some(row as u32), "block {k}");
+        }
+        // More replicated blocks than the model has: all of it, once.
+        let all = Ranks::new(3, 2).unwrap().replicating(99);
+        assert_eq!(all.resident_rows(10), 10);
+        let mut b: Vec<u32> = all.resident_blocks(10).collect();
+        b.sort();
+        assert_eq!(b, (0..10).collect::<Vec<_>>());
+        assert_eq!(Replicate::Root.blocks(7), 1);
+        assert_eq!(Replicate::Nodes.blocks(7), 7);
+        assert_eq!(Replicate::Nodes.blocks(0), 1);
     }
 
     #[test]

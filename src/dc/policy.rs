@@ -52,7 +52,7 @@ pub struct RoundPlan {
 
 impl CachePolicy {
     /// An empty cache of `lines` lines for rank `ranks.rank` of a model of `count` blocks: owned
-    /// blocks and the root at their resident rows, every other block absent.
+    /// and replicated blocks at their resident rows, every other block absent.
     pub fn new(ranks: Ranks, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
         let block_rows = (0..count)
             .map(|k| ranks.resident_row(k, count).unwrap_or(NONE))

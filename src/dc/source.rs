@@ -52,6 +52,7 @@ impl BlockSource for VirtualRanks {
         let ranks = Ranks {
             n: self.ranks,
             rank: 0,
+            replicated: 1,
         };
         for (&k, dst) in blocks.iter().zip(out.chunks_mut(bw)) {
             let store = &self.stores[ranks.owner(k) as usize];

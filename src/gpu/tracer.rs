@@ -142,7 +142,7 @@ pub struct GpuModel<'a> {
     /// The attribute blocks after the triangle blocks (none without colour by data).
     pub attrs: AttrLayout,
     /// Words of the resident rows: all blocks in id order when replicated; with a DC, the
-    /// rank's own blocks by slot, then the root block unless the rank owns it
+    /// rank's own blocks by slot, then the replicated blocks the rank does not own
     /// (`dc::Ranks::resident_row`).
     pub resident: &'a [u32],
     pub meshes: &'a Meshes,

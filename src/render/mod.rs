@@ -8,7 +8,7 @@ use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::{Blocks, Format};
 use crate::bvh::{Bvh, Preset};
 use crate::dc::source::{LocalFile, VirtualRanks};
-use crate::dc::{CacheMap, CacheSize, Ranks};
+use crate::dc::{CacheMap, CacheSize, Ranks, Replicate};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::gpu::tracer::{DcSetup, GpuModel, Meshes, Settings, Tracer};
@@ -207,13 +207,20 @@ impl Loaded {
         }
     }
 
+    pub fn node_blocks(&self) -> u32 {
+        match &self.source {
+            Source::Built(b) => b.node_blocks,
+            Source::File(f) => f.node_blocks,
+        }
+    }
+
     pub fn model_bytes(&self) -> u64 {
         u64::from(self.block_count()) * u64::from(self.format().block_bytes)
     }
 
     /// A tracer for the whole model, or for one rank of a distributed cache. From a block file,
-    /// a rank reads only its own blocks and the root; borrowed blocks are read from the file
-    /// when they fault.
+    /// a rank reads only its own blocks and the replicated ones; borrowed blocks are read from
+    /// the file when they fault.
     pub fn tracer<'g>(
         &self,
         gpu: &'g Gpu,
@@ -228,7 +235,7 @@ impl Loaded {
             let blocks = f.read_all(1)?;
             return tracer(gpu, &blocks, &self.meshes, self.depth, settings, None);
         };
-        let ranks = Ranks::new(o.ranks, o.rank)?;
+        let ranks = o.ranks(f.node_blocks)?;
         let resident = f.read_resident(ranks)?;
         let setup = DcSetup {
             ranks,
@@ -242,8 +249,8 @@ impl Loaded {
 
 impl Loaded {
     /// The blocks rank `ranks.rank` keeps on its GPU without a cache, in row order: its own
-    /// blocks by slot, then the replicated root block unless it owns it. From a block file only
-    /// these blocks are read.
+    /// blocks by slot, then the replicated blocks it does not own. From a block file only these
+    /// blocks are read.
     pub fn resident(&self, ranks: Ranks) -> Result<Vec<u32>> {
         match &self.source {
             Source::File(f) => f.read_resident(ranks),
@@ -366,16 +373,17 @@ pub struct ImageOf {
 }
 
 /// How one process runs the distributed cache: `ranks` virtual ranks in one process, rendering
-/// as `rank`, with a cache of `cache` and the `map` mapping.
+/// as `rank`, with a cache of `cache`, the `map` mapping, and `replicate` on every rank.
 #[derive(Clone, Copy, Debug)]
 pub struct DcOptions {
     pub ranks: u32,
     pub rank: u32,
     pub cache: CacheSize,
     pub map: CacheMap,
+    pub replicate: Replicate,
 }
 
-/// Memory a rank holds for the model: its resident blocks (own + root) and its cache.
+/// Memory a rank holds for the model: its resident blocks (own + replicated) and its cache.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct RankMemory {
     pub resident_bytes: u64,
@@ -388,8 +396,13 @@ impl DcOptions {
         self.cache.lines(count, format.block_bytes)
     }
 
-    pub fn memory(&self, count: u32, format: Format) -> Result<RankMemory> {
-        let ranks = Ranks::new(self.ranks, self.rank)?;
+    /// This rank, with what it replicates of a model of `node_blocks` node blocks.
+    pub fn ranks(&self, node_blocks: u32) -> Result<Ranks> {
+        Ok(Ranks::new(self.ranks, self.rank)?.replicating(self.replicate.blocks(node_blocks)))
+    }
+
+    pub fn memory(&self, count: u32, node_blocks: u32, format: Format) -> Result<RankMemory> {
+        let ranks = self.ranks(node_blocks)?;
         let bb = u64::from(format.block_bytes);
         let resident = u64::from(ranks.resident_rows(count));
         Ok(RankMemory {
@@ -424,7 +437,7 @@ fn tracer<'g>(
     match dc {
         None => Tracer::new(gpu, &base, settings, None),
         Some(o) => {
-            let ranks = Ranks::new(o.ranks, o.rank)?;
+            let ranks = o.ranks(blocks.node_blocks)?;
             let stores = VirtualRanks::new(blocks, o.ranks)?;
             let resident: Vec<u32> = ranks
                 .resident_blocks(blocks.count())

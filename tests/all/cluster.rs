@@ -126,7 +126,8 @@ impl Fixture {
     }
 
     /// `check` with other extra options than small tiles. Returns the rounds the render ranks'
-    /// frames shared between batches (`shared_rounds` of the frame records).
+    /// frames shared between batches (`shared_rounds` of the frame records) and the blocks that
+    /// faulted on any of them.
     fn check_with(
         &self,
         k: u32,
@@ -134,7 +135,7 @@ impl Fixture {
         cache: Option<&str>,
         exr: bool,
         extra: &[&str],
-    ) -> u64 {
+    ) -> (u64, std::collections::BTreeSet<u64>) {
         let name = format!("k{k}");
         let png = self.dir.path(&format!("{name}.png"));
         let exr_path = self.dir.path(&format!("{name}.exr"));
@@ -190,6 +191,7 @@ impl Fixture {
             let _ = std::fs::remove_file(self.frame(&name, "exr", f));
         }
         let mut shared = 0;
+        let mut faulted = std::collections::BTreeSet::new();
         if k >= 2 {
             let fetched = check_traces(&traces, k, FRAMES, self.size);
             if cache.is_some() && k >= 4 {
@@ -200,11 +202,15 @@ impl Fixture {
                     let v = records(&traces, f, r);
                     let frame = of(&v, "frame").next().expect("a frame record");
                     shared += frame["shared_rounds"].as_u64().unwrap_or(0);
+                    for round in of(&v, "round") {
+                        let faults = round["faults"].as_array().into_iter().flatten();
+                        faulted.extend(faults.map(|f| f["block"].as_u64().unwrap()));
+                    }
                 }
             }
             std::fs::remove_dir_all(&traces).unwrap();
         }
-        shared
+        (shared, faulted)
     }
 }
 
@@ -368,12 +374,43 @@ fn overlapping_tiles_under_mpirun_match_one_process() {
     for mca in [SHARED, TCP_PT2PT] {
         for cache in ["1/1", "1/8"] {
             let what = format!("{mca:?} {cache}");
-            let n = fx.check_with(4, mca, Some(cache), false, &tiles);
+            let (n, _) = fx.check_with(4, mca, Some(cache), false, &tiles);
             eprintln!("{what}: {n} shared rounds");
             let never = [&tiles[..], &["--overlap-batches", "never"]].concat();
-            let n = fx.check_with(4, mca, Some(cache), false, &never);
+            let (n, _) = fx.check_with(4, mca, Some(cache), false, &never);
             assert_eq!(n, 0, "{what}");
         }
+    }
+}
+
+/// Every node block on every rank (`--replicate-blocks nodes`, read from the block file beside
+/// each rank's own blocks): the same frames as one process, over shared memory and TCP, and
+/// only triangle blocks fault.
+#[test]
+fn replicated_node_blocks_under_mpirun_match_one_process() {
+    let fx = Fixture::new("cl-nodes");
+    let extra = [
+        "--tile",
+        "32",
+        "--min-tile",
+        "8",
+        "--cache-map",
+        "lru",
+        "--replicate-blocks",
+        "nodes",
+    ];
+    let node_blocks = u64::from(
+        dcrt::blocks::file::DcbFile::open(&fx.dcb)
+            .unwrap()
+            .node_blocks,
+    );
+    for mca in [SHARED, TCP_PT2PT] {
+        let (_, faulted) = fx.check_with(4, mca, Some("1/8"), false, &extra);
+        assert!(!faulted.is_empty(), "{mca:?}: triangle blocks are borrowed");
+        assert!(
+            faulted.iter().all(|&k| k >= node_blocks),
+            "{mca:?}: node blocks faulted: {faulted:?} (the first {node_blocks} are nodes)"
+        );
     }
 }
 

@@ -124,6 +124,7 @@ fn images_are_the_same_through_every_cache() {
                 rank: n - 1,
                 cache: CacheSize::parse(size).unwrap(),
                 map,
+                replicate: Default::default(),
             };
             let mut t = p.tracer_dc(&gpu, settings, &o).unwrap();
             let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();

@@ -3,7 +3,7 @@
 //! adds up.
 
 use crate::common::*;
-use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::layout::Pixel;
 use dcrt::gpu::tracer::{FaultMode, Frame, Next, OverlapMode, Rect, RectSource, Settings};
 use dcrt::render::frames::{Role, summarize};
@@ -48,6 +48,7 @@ fn sweep(g: Generator) {
                     rank,
                     cache: CacheSize::parse(size).unwrap(),
                     map,
+                    replicate: Default::default(),
                 };
                 let t0 = std::time::Instant::now();
                 let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
@@ -154,6 +155,7 @@ fn batches_shrink_to_the_blocks_a_cache_holds_and_images_stay_the_same() {
             rank: 1,
             cache: CacheSize::parse("1/32").unwrap(),
             map,
+            replicate: Default::default(),
         };
         let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
         let lines = t.cache().map_or(0, |(_, l, _)| l);
@@ -210,6 +212,7 @@ fn stores_split_over_several_textures_give_the_same_image() {
             rank: 1,
             cache: CacheSize::parse(size).unwrap(),
             map,
+            replicate: Default::default(),
         });
         let tracer = |s: Settings| match &o {
             Some(o) => p.tracer_dc(&gpu, s, o).unwrap(),
@@ -257,6 +260,7 @@ fn batches_overlap_where_their_tails_meet() {
             rank: 1,
             cache: CacheSize::parse(size).unwrap(),
             map,
+            replicate: Default::default(),
         };
         let frames = |overlap_batches| {
             let s = Settings {
@@ -346,6 +350,7 @@ fn tiles_from_a_source_share_rounds() {
         rank: 1,
         cache: CacheSize::parse("1/1").unwrap(),
         map: CacheMap::Lru,
+        replicate: Default::default(),
     };
     for overlap_batches in [OverlapMode::Auto, OverlapMode::Never] {
         let s = Settings {
@@ -429,6 +434,7 @@ fn a_rays_faults_go_out_together() {
                 rank: 3,
                 cache: CacheSize::parse("1/1").unwrap(),
                 map,
+                replicate: Default::default(),
             };
             let run = |faults| {
                 let s = Settings {
@@ -484,6 +490,7 @@ fn equally_near_hits_do_not_depend_on_the_order_blocks_arrive() {
             rank: 1,
             cache: CacheSize::parse(size).unwrap(),
             map: CacheMap::Lru,
+            replicate: Default::default(),
         };
         let s = Settings {
             faults: FaultMode::Always,
@@ -496,5 +503,63 @@ fn equally_near_hits_do_not_depend_on_the_order_blocks_arrive() {
             stats.fetched_blocks > 0,
             "{ranks} ranks, {size}: blocks were absent"
         );
+    }
+}
+
+#[test]
+fn replicated_node_blocks_leave_only_triangle_blocks_to_fault() {
+    // With every node block on every rank, a ray walks the whole tree without a fault and waits
+    // only for triangle blocks: the image stays the same for every rank count, cache and
+    // mapping (a single line still finishes), no node block is ever fetched, and a cold frame
+    // takes fewer fault rounds than with the root alone replicated.
+    let gpu = gpu();
+    let (p, camera) = model(Generator::Rm, 20_000);
+    let basis = camera.basis(W, H);
+    let (reference, _) = render(&gpu, &p, &camera, W, H, Settings::default());
+    let node_blocks = p.blocks.node_blocks;
+    assert!(
+        node_blocks > 4,
+        "the test needs a tree of several node blocks"
+    );
+    for n in [2u32, 7] {
+        for size in ["1line", "1/8", "1/1"] {
+            for map in [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru] {
+                let rank = n - 1;
+                let o = |replicate| DcOptions {
+                    ranks: n,
+                    rank,
+                    cache: CacheSize::parse(size).unwrap(),
+                    map,
+                    replicate,
+                };
+                let what = format!("N={n} rank {rank} cache {size} {map:?}");
+                let never = Settings {
+                    faults: FaultMode::Never,
+                    ..Settings::default()
+                };
+                let mut t = p.tracer_dc(&gpu, never, &o(Replicate::Nodes)).unwrap();
+                let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                same_pixels(&reference, &frame, &what);
+                let fetched: Vec<u32> = t
+                    .take_trace()
+                    .rounds
+                    .iter()
+                    .flat_map(|r| r.faults.iter().map(|f| f.block))
+                    .collect();
+                assert!(!fetched.is_empty(), "{what}: triangle blocks are borrowed");
+                assert!(
+                    fetched.iter().all(|&k| k >= node_blocks),
+                    "{what}: a node block faulted: {fetched:?}"
+                );
+                let mut root = p.tracer_dc(&gpu, never, &o(Replicate::Root)).unwrap();
+                let (_, root_stats) = root.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                assert!(
+                    stats.fault_rounds < root_stats.fault_rounds,
+                    "{what}: {} fault rounds with the nodes replicated, {} with the root",
+                    stats.fault_rounds,
+                    root_stats.fault_rounds
+                );
+            }
+        }
     }
 }

@@ -107,6 +107,7 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
         rank: 1,
         cache: CacheSize::parse("1/8").unwrap(),
         map: CacheMap::Demarle,
+        replicate: Default::default(),
     };
     let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
     let role = Role::one_process(&t);

@@ -342,6 +342,7 @@ fn every_mode_is_bit_identical_through_the_distributed_cache() {
             rank: 1,
             cache: CacheSize::parse("1/8").unwrap(),
             map: CacheMap::Ize,
+            replicate: Default::default(),
         };
         let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
         let (dc, ds) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();

@@ -14,7 +14,7 @@ use anyhow::{Result, bail};
 use clap::{Args, Parser, Subcommand};
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
-use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, FaultMode, OverlapMode, Settings};
 use dcrt::output::Aov;
@@ -259,6 +259,11 @@ struct DcArgs {
     /// Everything resident, no cache (the default without --virtual-ranks).
     #[arg(long, conflicts_with = "virtual_ranks")]
     replicate: bool,
+    /// With a distributed cache: the blocks every rank holds besides its own. `nodes` costs the
+    /// BVH's blocks on every rank (about a sixth of a model) and leaves only triangle blocks to
+    /// fault.
+    #[arg(long, value_enum, default_value_t = Replicate::Root)]
+    replicate_blocks: Replicate,
 }
 
 impl DcArgs {
@@ -281,6 +286,7 @@ impl DcArgs {
             rank: self.rank,
             cache: CacheSize::parse(self.cache.as_deref().unwrap_or("1/8"))?,
             map: self.cache_map,
+            replicate: self.replicate_blocks,
         }))
     }
 }
@@ -362,6 +368,10 @@ struct BenchArgs {
     /// Cache sizes for --dc.
     #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
     caches: Vec<String>,
+    /// What every rank replicates in the --dc sweep (`root,nodes` sweeps both, and --soak takes
+    /// the first).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "root")]
+    replicate_blocks: Vec<Replicate>,
     /// Cluster sweep: mpirun jobs of this binary with --ranks ranks, replicated and with the
     /// distributed cache (--cluster-caches), beside one process; block fetch costs on every
     /// --transports; then the display benchmark for each --copy-threads. Runs the rm and the
@@ -370,8 +380,9 @@ struct BenchArgs {
     cluster: bool,
     #[arg(long, value_delimiter = ',', default_value = "2,3,4,5,6")]
     ranks: Vec<u32>,
-    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`) and
-    /// `:OVERLAP` for another `--overlap-batches` than `auto` (`1/8:lru:never`).
+    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`),
+    /// `:OVERLAP` for another `--overlap-batches` than `auto` (`1/8:lru:never`) and `:REPLICATE`
+    /// for another `--replicate-blocks` than `root` (`1/8:lru:auto:nodes`).
     #[arg(long, value_delimiter = ',', default_value = "none,1/8")]
     cluster_caches: Vec<String>,
     #[arg(
@@ -489,7 +500,11 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
     }
     let c = &a.cluster;
     let cache = match &a.dc.cache {
-        Some(s) => Some((CacheSize::parse(s)?, a.dc.cache_map)),
+        Some(s) => Some(dcrt::cluster::CacheOptions {
+            size: CacheSize::parse(s)?,
+            map: a.dc.cache_map,
+            replicate: a.dc.replicate_blocks,
+        }),
         None => None,
     };
     let opts = dcrt::cluster::Options {

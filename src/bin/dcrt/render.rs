@@ -105,7 +105,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
     match &dc {
         Some(o) => {
-            let m = o.memory(loaded.block_count(), loaded.format())?;
+            let m = o.memory(loaded.block_count(), loaded.node_blocks(), loaded.format())?;
             eprintln!(
                 "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}; blocks in \
                  {}) of a {:.1} MiB model",

@@ -37,8 +37,13 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
                         anyhow::anyhow!("--cluster-caches {other}: no overlap mode {o:?}")
                     })?;
                 }
+                if let Some(r) = parts.next() {
+                    <dcrt::dc::Replicate as clap::ValueEnum>::from_str(r, true).map_err(|_| {
+                        anyhow::anyhow!("--cluster-caches {other}: no replicated blocks {r:?}")
+                    })?;
+                }
                 if parts.next().is_some() {
-                    bail!("--cluster-caches {other}: SIZE[:MAP[:OVERLAP]]");
+                    bail!("--cluster-caches {other}: SIZE[:MAP[:OVERLAP[:REPLICATE]]]");
                 }
                 Ok(Some(other.to_string()))
             }

@@ -5,7 +5,7 @@ use super::{Table, emit, frame_stats};
 use crate::{BenchArgs, settings};
 use anyhow::{Result, bail};
 use dcrt::blocks::Format;
-use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::Gpu;
 use dcrt::progress::Progress;
 use dcrt::render::frames::View;
@@ -17,6 +17,8 @@ struct DcRow {
     config: String,
     cache: Option<String>,
     cache_map: Option<CacheMap>,
+    /// What every rank holds besides its own blocks (`--replicate-blocks`).
+    replicate: Option<Replicate>,
     cache_lines: u32,
     /// Mean over the frames after the first (warm cache), and the first (cold).
     frame_ms: f64,
@@ -82,26 +84,25 @@ pub fn run(
     }
     let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
     let blocks = &prepared.blocks;
-    let mut configs: Vec<Option<DcOptions>> = vec![None];
+    let mut configs: Vec<(Option<DcOptions>, Option<String>)> = vec![(None, None)];
     const MAPS: [CacheMap; 3] = [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru];
-    for map in MAPS {
-        for c in &a.caches {
-            configs.push(Some(DcOptions {
-                ranks: a.virtual_ranks,
-                rank: a.rank,
-                cache: CacheSize::parse(c)?,
-                map,
-            }));
+    for &replicate in &a.replicate_blocks {
+        for map in MAPS {
+            for c in &a.caches {
+                let o = DcOptions {
+                    ranks: a.virtual_ranks,
+                    rank: a.rank,
+                    cache: CacheSize::parse(c)?,
+                    map,
+                    replicate,
+                };
+                configs.push((Some(o), Some(c.clone())));
+            }
         }
     }
     let mut rows = Vec::new();
     let bar = Progress { quiet: a.quiet }.bar(configs.len() as u64, "cache configurations");
-    for (cfg, cache_name) in configs.iter().zip(
-        std::iter::once(None).chain(
-            MAPS.iter()
-                .flat_map(|_| a.caches.iter().map(|c| Some(c.clone()))),
-        ),
-    ) {
+    for (cfg, cache_name) in &configs {
         bar.inc(1);
         let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
         let size = (a.width, a.height);
@@ -122,7 +123,7 @@ pub fn run(
         let (resident, cache, lines) = match cfg {
             None => (blocks.bytes(), 0, 0),
             Some(o) => {
-                let m = o.memory(blocks.count(), blocks.format)?;
+                let m = o.memory(blocks.count(), blocks.node_blocks, blocks.format)?;
                 (
                     m.resident_bytes,
                     m.cache_bytes,
@@ -138,6 +139,7 @@ pub fn run(
             },
             cache: cache_name.clone(),
             cache_map: cfg.map(|o| o.map),
+            replicate: cfg.map(|o| o.replicate),
             cache_lines: lines,
             frame_ms: secs / n * 1e3,
             first_frame_ms: first_ms,
@@ -190,8 +192,9 @@ pub fn run(
                         rank: r,
                         cache: cache_for_memory,
                         map: CacheMap::Ize,
+                        replicate: a.replicate_blocks.first().copied().unwrap_or_default(),
                     }
-                    .memory(blocks.count(), blocks.format)
+                    .memory(blocks.count(), blocks.node_blocks, blocks.format)
                     .map(|m| m.resident_bytes)
                 })
                 .collect::<dcrt::Result<Vec<u64>>>()
@@ -250,6 +253,7 @@ fn print(report: &DcReport) {
         ("config", -10),
         ("cache", -5),
         ("map", -8),
+        ("repl", -5),
         ("lines", 6),
         ("frame ms", 9),
         ("cold ms", 9),
@@ -274,6 +278,9 @@ fn print(report: &DcReport) {
             r.config.clone(),
             r.cache.clone().unwrap_or_else(|| "-".into()),
             r.cache_map
+                .map(|m| format!("{m:?}").to_lowercase())
+                .unwrap_or_else(|| "-".into()),
+            r.replicate
                 .map(|m| format!("{m:?}").to_lowercase())
                 .unwrap_or_else(|| "-".into()),
             r.cache_lines.to_string(),

@@ -78,6 +78,7 @@ pub fn run(
             rank: a.rank,
             cache: CacheSize::parse(c)?,
             map: CacheMap::Ize,
+            replicate: a.replicate_blocks.first().copied().unwrap_or_default(),
         }),
         None => None,
     };
