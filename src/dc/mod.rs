@@ -308,18 +308,8 @@ mod tests {
         );
         assert_eq!(r.root_row(10), 3);
         let rows: Vec<Option<u32>> = (0..10).map(|k| r.resident_row(k, 10)).collect();
-        let want = [
-            Some(3),
-            Some(0),
-            Some(4),
-            Some(5),
-            Some(1),
-            None,
-            None,
-            Some(2),
-            None,
-            None,
-        ];
+        const NO: u32 = u32::MAX;
+        let want = [3, 0, 4, 5, 1, NO, NO, 2, NO, NO].map(|row| (row != NO).then_some(row));
         assert_eq!(rows, want);
         assert!((0..5).all(|k| r.resident(k)) && !r.resident(5));
         // Every row is named once, and each block's row is where `resident_blocks` puts it.
