@@ -370,6 +370,13 @@ fn messages_say_their_cause_once() {
         &["--virtual-ranks", "2", "--rank", "2"],
         &["--rank 2 is out of range"],
     );
+    // Replicated blocks mean something only beside a cache: not silently ignored without one.
+    fails(
+        &d,
+        &s,
+        &["--replicate-blocks", "nodes"],
+        &["--replicate-blocks nodes needs a distributed cache"],
+    );
 }
 
 /// A small legacy VTK file: two triangles, point array "p", cell array "c".

@@ -573,6 +573,16 @@ fn virtual_ranks_are_refused_under_mpirun() {
     .out;
     assert!(!out.status.success());
     assert!(stderr(&out).contains("--virtual-ranks is for one process"));
+    // Without --cache every rank holds the model: replicating node blocks would mean nothing.
+    let nodes = [&args[..], &["--replicate-blocks", "nodes"]].concat();
+    let out = mpirun(3, SHARED, &nodes, &[], 60).out;
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("--replicate-blocks nodes needs --cache"),
+        "{err}"
+    );
+    assert!(!png.exists(), "no output on a refused run");
 }
 
 /// Shading modes, samples and exposure under mpirun (distributed cache, 4 ranks) give the

@@ -269,6 +269,13 @@ struct DcArgs {
 impl DcArgs {
     fn options(&self) -> Result<Option<DcOptions>> {
         let Some(n) = self.virtual_ranks else {
+            if self.replicate_blocks != Replicate::Root {
+                bail!(
+                    "--replicate-blocks {} needs a distributed cache: give --virtual-ranks N \
+                     (under mpirun, --cache); without one every block is resident",
+                    self.replicate_name()
+                );
+            }
             return Ok(None);
         };
         if n == 0 {
@@ -288,6 +295,10 @@ impl DcArgs {
             map: self.cache_map,
             replicate: self.replicate_blocks,
         }))
+    }
+
+    fn replicate_name(&self) -> String {
+        format!("{:?}", self.replicate_blocks).to_lowercase()
     }
 }
 
@@ -505,6 +516,11 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
             map: a.dc.cache_map,
             replicate: a.dc.replicate_blocks,
         }),
+        None if a.dc.replicate_blocks != Replicate::Root => bail!(
+            "--replicate-blocks {} needs --cache under mpirun: without a cache every rank holds \
+             the whole model",
+            a.dc.replicate_name()
+        ),
         None => None,
     };
     let opts = dcrt::cluster::Options {
