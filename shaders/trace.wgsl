@@ -216,6 +216,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // Which set-aside slots this round filled: their blocks are requested after the loop.
         var set_aside_now = 0u;
         var pending_row = 0u;
+        // The row of the last triangle block the ray used (keep_line).
+        var tri_row = NONE;
         var pending_slot = 0u;
         var pending_index = 0u;
         loop {
@@ -251,9 +253,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let tl = tri_loc(cur.x);
                 let k = select(tl.x, nl.x, node);
                 let row = lookup(k);
-                if DC && row == NONE {
-                    fault_block = k;
-                    break;
+                if DC {
+                    if row == NONE {
+                        fault_block = k;
+                        break;
+                    }
+                    tri_row = select(row, tri_row, node);
                 }
                 let tt = tri_texel(tl.y);
                 let t0 = select(tt.x, nl.y * 4u, node);
@@ -397,6 +402,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             if wait_fault {
                 request(r.wait_block);
             }
+            keep_line(tri_row);
         }
         if closest.found {
             let hit_row = closest.row;

@@ -22,8 +22,10 @@ struct Faults {
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
 // Per cache line, nonzero once a ray of the round found its block there: the host's recency for
-// the Lru mapping, and with the fault list the frame's distinct borrowed blocks. A plain store:
-// racing writers write the same value.
+// the Lru mapping, and with the fault list the frame's distinct borrowed blocks. Then, at
+// dc_lines + line, nonzero when a ray still live after the round last used a triangle block
+// there (`keep_line`): with the node blocks the round used, the lines Lru does not evict next
+// round. Plain stores: racing writers write the same value.
 @group(0) @binding(9) var<storage, read_write> line_used: array<u32>;
 
 // Per invocation, summed into Stats by the trace kernel.
@@ -68,6 +70,14 @@ fn lookup(k: u32) -> u32 {
     }
     dc_misses += 1u;
     return NONE;
+}
+
+// Marks the cache line of `row` (a block row, or NONE) as one a ray still live needs again: the
+// leaves it set aside on its stack are mostly next to the last one it tested.
+fn keep_line(row: u32) {
+    if row != NONE && row >= params.dc_cache_row {
+        line_used[params.dc_lines + row - params.dc_cache_row] = 1u;
+    }
 }
 
 // Records a fault on block k, once per round however many rays ask.

@@ -51,7 +51,8 @@ struct Params {
     // albedo_stride * i + albedo_stride - 1 (1: primary rays; a wave's fan: its bounce rays).
     attr_block0: u32,
     albedo_stride: u32,
-    pad4: u32,
+    // Tiles across a band of the batch order (shared/tiles.wgsl); 0: one band.
+    band_tiles: u32,
     pad5: u32,
 }
 

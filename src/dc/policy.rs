@@ -27,6 +27,11 @@ pub struct CachePolicy {
     /// `Lru`'s recency.
     round: u64,
     stamps: Vec<u64>,
+    /// The lines `Lru` keeps in the next plan (`mark_used`): those holding a node block the
+    /// last round used, and those holding the triangle block a ray still live after it used
+    /// last. Blocks `0..node_blocks` are node blocks.
+    kept: Vec<bool>,
+    node_blocks: u32,
 }
 
 /// A block to fetch into a cache line.
@@ -53,7 +58,13 @@ pub struct RoundPlan {
 impl CachePolicy {
     /// An empty cache of `lines` lines for rank `ranks.rank` of a model of `count` blocks: owned
     /// and replicated blocks at their resident rows, every other block absent.
-    pub fn new(ranks: Ranks, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
+    pub fn new(
+        ranks: Ranks,
+        map: CacheMap,
+        lines: u32,
+        count: u32,
+        node_blocks: u32,
+    ) -> CachePolicy {
         let block_rows = (0..count)
             .map(|k| ranks.resident_row(k, count).unwrap_or(NONE))
             .collect();
@@ -66,6 +77,8 @@ impl CachePolicy {
             block_rows,
             round: 0,
             stamps: vec![0; lines as usize],
+            kept: vec![false; lines as usize],
+            node_blocks,
         }
     }
 
@@ -98,12 +111,20 @@ impl CachePolicy {
     }
 
     /// Records the lines the GPU found a block in during the round about to be planned
-    /// (`used[line]` nonzero).
-    pub fn mark_used(&mut self, used: &[u32]) {
-        for (stamp, &u) in self.stamps.iter_mut().zip(used) {
+    /// (`used[line]` nonzero), and those whose triangle block a ray still live after it used
+    /// last (`kept[line]` nonzero; shared/dc.wgsl, `keep_line`).
+    pub fn mark_used(&mut self, used: &[u32], kept: &[u32]) {
+        self.kept.iter_mut().for_each(|k| *k = false);
+        for (line, &u) in used.iter().enumerate().take(self.lines as usize) {
             if u != 0 {
-                *stamp = self.round + 1;
+                self.stamps[line] = self.round + 1;
+                // A node block's rays are many and its children all over the tree: kept
+                // whenever used.
+                self.kept[line] = self.tags[line] < self.node_blocks;
             }
+        }
+        for (k, &u) in self.kept.iter_mut().zip(kept) {
+            *k |= u != 0;
         }
     }
 
@@ -115,19 +136,23 @@ impl CachePolicy {
         let mut claimed = vec![false; self.lines as usize];
         let mut plan = RoundPlan::default();
         // Lru: the round's lines, least recently loaded or used first (empty lines before all),
-        // at most one fault each; faults past them fault again. Lines the round just traced
-        // used are kept: their rays resume in them (evicting them refetched a third of a 1/32
-        // cache's blocks, docs/ARCHITECTURE.md, The distributed cache). Only when the round used
-        // every line does the least recent one go, so that every round with faults loads a block.
+        // at most one fault each; faults past them fault again. Kept lines (`mark_used`) stay:
+        // their rays resume next to them (evicting them refetched a third of a 1/32 cache's
+        // blocks, docs/ARCHITECTURE.md, The distributed cache). Only when every line is kept
+        // does the least recent one go, so that every round with faults loads a block.
         let mut free = Vec::new();
         if self.map == CacheMap::Lru {
-            free = (0..self.lines).collect();
-            free.sort_by_key(|&l| (self.stamps[l as usize], l));
-            let unused = free
+            let mut order: Vec<u32> = (0..self.lines).collect();
+            order.sort_by_key(|&l| (self.stamps[l as usize], l));
+            free = order
                 .iter()
-                .take_while(|&&l| self.stamps[l as usize] < self.round)
-                .count();
-            free.truncate(unused.max(1).min(faults.len()));
+                .copied()
+                .filter(|&l| !self.kept[l as usize])
+                .collect();
+            if free.is_empty() {
+                free.extend(order.first());
+            }
+            free.truncate(faults.len());
             free.reverse();
         }
         for &k in faults {
@@ -181,7 +206,7 @@ mod tests {
     use super::*;
 
     fn policy(n: u32, rank: u32, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
-        CachePolicy::new(Ranks::new(n, rank).unwrap(), map, lines, count)
+        CachePolicy::new(Ranks::new(n, rank).unwrap(), map, lines, count, 0)
     }
 
     #[test]
@@ -222,7 +247,7 @@ mod tests {
         let mut rounds = 0;
         while let Some(&k) = wanted.first() {
             // The round used the line, as a ray would have used the block loaded last round.
-            p.mark_used(&[1]);
+            p.mark_used(&[1], &[1]);
             let plan = p.plan_round(&wanted, &[wanted.len() as u32]);
             assert_eq!(plan.loads.len(), 1);
             assert_eq!(plan.loads[0].block, k);
@@ -289,7 +314,7 @@ mod tests {
         // line 1 goes first although line 0 was loaded no later.
         let mut p = policy(2, 0, CacheMap::Lru, 2, 40);
         p.plan_round(&[5, 7], &[0; 2]);
-        p.mark_used(&[1, 0]);
+        p.mark_used(&[1, 0], &[0, 0]);
         let plan = p.plan_round(&[9], &[0; 2]);
         assert_eq!(plan.loads[0].line, 1);
         assert_eq!(plan.faults[0].evicted, Some(7));
@@ -297,18 +322,18 @@ mod tests {
         // Direct mappings take no notice.
         let mut p = policy(2, 0, CacheMap::Demarle, 2, 40);
         p.plan_round(&[5, 7], &[0; 2]);
-        p.mark_used(&[1, 0]);
+        p.mark_used(&[1, 0], &[0, 0]);
         assert_eq!(p.plan_round(&[9], &[0; 2]).loads[0].line, 1);
     }
 
     #[test]
-    fn lru_evicts_no_line_the_last_round_used_while_others_are_free() {
-        // 3 lines filled in round 1; round 2 used lines 0 and 2. Of round 3's three faults one
-        // goes to line 1; the other two fault again, although lines 0 and 2 were loaded as
-        // early as line 1.
+    fn lru_evicts_no_kept_line_while_others_are_free() {
+        // 3 lines filled in round 1; in round 2 rays that stay live used lines 0 and 2. Of
+        // round 3's three faults one goes to line 1; the other two fault again, although lines
+        // 0 and 2 were loaded as early as line 1.
         let mut p = policy(2, 0, CacheMap::Lru, 3, 40);
         p.plan_round(&[5, 7, 9], &[0; 3]);
-        p.mark_used(&[1, 0, 1]);
+        p.mark_used(&[1, 0, 1], &[1, 0, 1]);
         let plan = p.plan_round(&[11, 13, 15], &[0; 3]);
         assert_eq!(plan.loads.len(), 1);
         assert_eq!((plan.loads[0].block, plan.loads[0].line), (11, 1));
@@ -318,10 +343,42 @@ mod tests {
             assert_ne!(p.block_rows()[k], NONE, "block {k}");
         }
         // A round that used every line still loads one block: the least recently loaded line.
-        p.mark_used(&[1, 1, 1]);
+        p.mark_used(&[1, 1, 1], &[1, 1, 1]);
         let plan = p.plan_round(&[13, 15], &[0; 3]);
         assert_eq!(plan.loads.len(), 1);
         assert_eq!(plan.faults[0].evicted, Some(5));
+    }
+
+    #[test]
+    fn lru_keeps_every_node_block_the_round_used() {
+        // Rank 0 of 2, blocks 0..8 node blocks: 5 and 7 (lines 0, 1) are node blocks, 9 (line 2)
+        // a triangle block. The round used all three but kept none: only line 2 is free.
+        let ranks = Ranks::new(2, 0).unwrap();
+        let mut p = CachePolicy::new(ranks, CacheMap::Lru, 3, 40, 8);
+        p.plan_round(&[5, 7, 9], &[0; 3]);
+        p.mark_used(&[1, 1, 1], &[0, 0, 0]);
+        let plan = p.plan_round(&[11, 13], &[0; 3]);
+        assert_eq!(plan.loads.len(), 1);
+        assert_eq!((plan.loads[0].block, plan.loads[0].line), (11, 2));
+        // Unused, a node block's line is as free as any.
+        p.mark_used(&[0, 0, 1], &[0, 0, 0]);
+        let plan = p.plan_round(&[13, 15], &[0; 3]);
+        let lines: Vec<u32> = plan.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![0, 1]);
+    }
+
+    #[test]
+    fn lru_evicts_a_used_line_no_live_ray_kept() {
+        // Round 2 used lines 0 and 2, but only a ray still live kept line 2: line 0's rays are
+        // done with it. Round 3's faults take line 1 (least recent) and line 0; line 2 stays.
+        let mut p = policy(2, 0, CacheMap::Lru, 3, 40);
+        p.plan_round(&[5, 7, 9], &[0; 3]);
+        p.mark_used(&[1, 0, 1], &[0, 0, 1]);
+        let plan = p.plan_round(&[11, 13, 15], &[0; 3]);
+        let lines: Vec<u32> = plan.loads.iter().map(|l| l.line).collect();
+        assert_eq!(lines, vec![1, 0]);
+        assert_ne!(p.block_rows()[9], NONE);
+        assert_eq!(p.block_rows()[15], NONE);
     }
 
     #[test]
@@ -330,7 +387,7 @@ mod tests {
         let mut wanted: Vec<u32> = (0..30).filter(|k| !p.ranks().resident(*k)).collect();
         while let Some(&k) = wanted.first() {
             // The round used the line, as a ray would have used the block loaded last round.
-            p.mark_used(&[1]);
+            p.mark_used(&[1], &[1]);
             let plan = p.plan_round(&wanted, &[wanted.len() as u32]);
             assert_eq!(plan.loads.len(), 1);
             assert_eq!(plan.loads[0].block, k);

@@ -101,6 +101,10 @@ pub struct Round {
     /// Cache lines in which the round's rays found their block (0 in traces of older builds).
     #[serde(default)]
     pub used_lines: u32,
+    /// Of those, the lines whose triangle block a ray still live after the round used last:
+    /// `lru` keeps them (0 in traces of older builds).
+    #[serde(default)]
+    pub kept_lines: u32,
     /// When the round's dispatches were submitted, in ms since the trace epoch (absent in traces
     /// of older builds).
     #[serde(default, skip_serializing_if = "Option::is_none")]

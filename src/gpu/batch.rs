@@ -133,7 +133,7 @@ impl Batch {
         );
         let waiter_readback = gpu.buffer(
             "waiter readback",
-            8 * u64::from(lines),
+            12 * u64::from(lines),
             U::MAP_READ | U::COPY_DST,
         );
         let pixel_readback =

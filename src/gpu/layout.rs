@@ -55,7 +55,8 @@ pub struct Params {
     /// rays).
     pub attr_block0: u32,
     pub albedo_stride: u32,
-    pub pad4: u32,
+    /// Tiles across a band of the batch order (`mirror::tiles::Tiling::band`); 0: one band.
+    pub band_tiles: u32,
     pub pad5: u32,
 }
 const _: () = assert!(std::mem::size_of::<Params>() == 208);

@@ -12,6 +12,7 @@ use super::layout::{FaultHeader, Pixel, RoundReadback, Stats};
 use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Next, RectSource, Tracer};
 use crate::dc::trace::Round;
 use crate::error::{Error, Result};
+use crate::mirror::tiles::Tiling;
 use crate::scene::CameraBasis;
 use std::collections::VecDeque;
 use std::mem::{offset_of, size_of};
@@ -228,7 +229,7 @@ impl Tracer<'_> {
                         let mut batches = 0;
                         for first in (0..plan.tiles).step_by(plan.per_batch as usize) {
                             let tiles = plan.per_batch.min(plan.tiles - first);
-                            pending.push_back(LaneRun::new(rect, plan.tiles_x, slot, first, tiles));
+                            pending.push_back(LaneRun::new(rect, plan.tiling, slot, first, tiles));
                             batches += 1;
                         }
                         let pixels = vec![Pixel::default(); rect.pixels()];
@@ -243,7 +244,7 @@ impl Tracer<'_> {
             }
             let start = free.filter(|_| tails);
             if let Some((l, run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
-                self.set_rect(run.rect, run.tiles_x);
+                self.set_rect(run.rect, run.tiling);
                 self.params.first_tile = run.first;
                 self.params.batch_rays = run.tiles * TILE_RAYS;
                 self.record_start(&mut enc, l, Gen::Primary);
@@ -315,7 +316,7 @@ impl Tracer<'_> {
                 let rect = open[run.slot]
                     .as_mut()
                     .expect("a batch's rectangle is open");
-                self.set_rect(run.rect, run.tiles_x);
+                self.set_rect(run.rect, run.tiling);
                 self.params.first_tile = run.first;
                 self.params.batch_rays = run.tiles * TILE_RAYS;
                 self.swap_lanes(l);
@@ -348,7 +349,7 @@ impl Tracer<'_> {
     ) -> Result<()> {
         self.resolve_albedos(stats)?;
         self.run(&self.kernels.shade, &self.bound.shade);
-        self.read_pixels(run.first, run.tiles, run.rect, 1, pixels)?;
+        self.read_pixels(run.first, run.tiles, (run.rect, run.tiling), 1, pixels)?;
         stats.batches += 1;
         Ok(())
     }
@@ -423,7 +424,7 @@ impl Tracer<'_> {
         let wait_bytes = 4 * u64::from(dc.policy.lines());
         let r = &b.waiter_readback;
         enc.copy_buffer_to_buffer(&bufs.waiters, 0, r, 0, wait_bytes);
-        enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, wait_bytes);
+        enc.copy_buffer_to_buffer(&bufs.line_used, 0, r, wait_bytes, 2 * wait_bytes);
     }
 
     pub(super) fn clear_faults(&self, enc: &mut wgpu::CommandEncoder) {
@@ -470,7 +471,8 @@ impl Tracer<'_> {
             return Ok(());
         }
         let waiting: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[..4 * lines]);
-        dc.policy.mark_used(&used);
+        let kept: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[8 * lines..12 * lines]);
+        dc.policy.mark_used(&used, &kept);
         let plan = dc.policy.plan_round(&list, &waiting);
         let mut rec = Round {
             batch: stats.batches,
@@ -483,6 +485,7 @@ impl Tracer<'_> {
             wait_ms: Some(waited.as_secs_f64() * 1e3),
             gpu_ms,
             used_lines: used.iter().filter(|&&u| u != 0).count() as u32,
+            kept_lines: kept.iter().filter(|&&u| u != 0).count() as u32,
             ..Round::default()
         };
         let bw = self.format.words() as usize;
@@ -536,9 +539,9 @@ const TAIL_SHARE: u32 = 16;
 
 /// A batch in one lane, or waiting for one (`Tracer::render_overlapped`).
 struct LaneRun {
-    /// Its rectangle, the rectangle's tiles a row and its place in the open rectangles.
+    /// Its rectangle, the order of the rectangle's tiles and its place in the open rectangles.
     rect: Rect,
-    tiles_x: u32,
+    tiling: Tiling,
     slot: usize,
     /// Its first tile and tile count within the rectangle.
     first: u32,
@@ -558,10 +561,10 @@ struct OpenRect {
 }
 
 impl LaneRun {
-    fn new(rect: Rect, tiles_x: u32, slot: usize, first: u32, tiles: u32) -> LaneRun {
+    fn new(rect: Rect, tiling: Tiling, slot: usize, first: u32, tiles: u32) -> LaneRun {
         LaneRun {
             rect,
-            tiles_x,
+            tiling,
             slot,
             first,
             tiles,

@@ -20,7 +20,7 @@ use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
 use crate::dc::{CacheMap, Ranks};
 use crate::error::{Error, Result};
-use crate::mirror::tiles::tile_pixel;
+use crate::mirror::tiles::{Tiling, tile_pixel};
 use crate::reference::Ray;
 use crate::scene::CameraBasis;
 use crate::shading::{Sampler, Shading};
@@ -314,7 +314,7 @@ impl RectSource for OneRect {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct RectPlan {
     pub tiles: u32,
-    pub tiles_x: u32,
+    pub tiling: Tiling,
     pub per_batch: u32,
 }
 
@@ -436,7 +436,7 @@ impl<'g> Tracer<'g> {
                         d.ranks.rank, d.ranks.n
                     )));
                 }
-                let policy = CachePolicy::new(d.ranks, d.map, d.lines, blocks);
+                let policy = CachePolicy::new(d.ranks, d.map, d.lines, blocks, model.node_blocks);
                 params.dc_ranks = d.ranks.n;
                 params.dc_rank = d.ranks.rank;
                 params.dc_lines = d.lines;
@@ -474,7 +474,7 @@ impl<'g> Tracer<'g> {
                     ),
                     line_used: gpu.buffer(
                         "line used",
-                        4 * u64::from(d.lines),
+                        8 * u64::from(d.lines),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
                 };
@@ -764,7 +764,7 @@ impl<'g> Tracer<'g> {
                 }
             }
             let t = Instant::now();
-            self.read_pixels(first, n_tiles, rect, sh.spp, &mut pixels)?;
+            self.read_pixels(first, n_tiles, (rect, plan.tiling), sh.spp, &mut pixels)?;
             stats.shade_seconds += t.elapsed().as_secs_f64();
             stats.batches += 1;
             first += n_tiles;
@@ -825,8 +825,6 @@ impl<'g> Tracer<'g> {
                 "tile {rect:?} is empty or outside the {w}x{h} image"
             )));
         }
-        let tiles_x = rect.w.div_ceil(TILE);
-        let tiles = tiles_x * rect.h.div_ceil(TILE);
         let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
         self.params.origin = v4(basis.origin, 1.0);
         self.params.forward = v4(basis.forward, 0.0);
@@ -835,7 +833,6 @@ impl<'g> Tracer<'g> {
         self.params.background = v4(background, 1.0);
         self.params.width = w;
         self.params.height = h;
-        self.set_rect(rect, tiles_x);
         let sh = self.settings.shading;
         let fan = sh.fan(basis);
         self.gpu.write(&self.shade_buf, &sh.gpu_params(basis));
@@ -859,17 +856,21 @@ impl<'g> Tracer<'g> {
             Some(p) => per_batch.min((p.max(MIN_FIT_PIXELS) / TILE_RAYS).max(1)),
             None => per_batch,
         };
+        let tiling = Tiling::new(rect.w, rect.h, per_batch);
+        let tiles = tiling.tiles();
+        self.set_rect(rect, tiling);
         self.several_batches |= tiles > per_batch;
         Ok(RectPlan {
             tiles,
-            tiles_x,
+            tiling,
             per_batch,
         })
     }
 
     /// The rectangle fields of `Params`.
-    pub(super) fn set_rect(&mut self, rect: Rect, tiles_x: u32) {
-        self.params.tiles_x = tiles_x;
+    pub(super) fn set_rect(&mut self, rect: Rect, tiling: Tiling) {
+        self.params.tiles_x = tiling.tiles_x;
+        self.params.band_tiles = tiling.band;
         (self.params.rect_x, self.params.rect_y) = (rect.x, rect.y);
         (self.params.rect_w, self.params.rect_h) = (rect.w, rect.h);
     }
@@ -929,7 +930,7 @@ impl<'g> Tracer<'g> {
         &self,
         first_tile: u32,
         n_tiles: u32,
-        rect: Rect,
+        (rect, tiling): (Rect, Tiling),
         spp: u32,
         out: &mut [Pixel],
     ) -> Result<()> {
@@ -945,7 +946,7 @@ impl<'g> Tracer<'g> {
         let data = gpu.map_read_prefix(&b.pixel_readback, bytes)?;
         let px: Vec<Pixel> = bytemuck::pod_collect_to_vec(&data);
         for (i, p) in px.iter().enumerate() {
-            let (x, y) = tile_pixel(first_tile, self.params.tiles_x, i as u32);
+            let (x, y) = tile_pixel(first_tile, tiling, i as u32);
             if x < rect.w && y < rect.h {
                 let mut p = *p;
                 p.rgb = p.rgb.map(|c| c * scale);

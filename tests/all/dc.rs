@@ -39,6 +39,7 @@ fn sweep(g: Generator) {
     let sizes = ["1line", "1/32", "1/8", "1/2", "1/1"];
     // Cache lines the GPU marked as used, over the fault rounds of the whole sweep.
     let mut used_lines = 0u64;
+    let mut kept_lines = 0u64;
     for n in [1u32, 2, 3, 4, 7] {
         for size in sizes {
             for map in [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru] {
@@ -118,7 +119,10 @@ fn sweep(g: Generator) {
                         "{what}: every fault round loads a block"
                     );
                     assert!(r.used_lines <= lines, "{what}");
+                    // Only rays still live keep a line, each its last triangle block's.
+                    assert!(r.kept_lines <= r.used_lines.min(r.live), "{what}: {r:?}");
                     used_lines += u64::from(r.used_lines);
+                    kept_lines += u64::from(r.kept_lines);
                     for f in r.faults.iter() {
                         assert_ne!(f.owner, rank, "{what}: a rank never fetches its own block");
                     }
@@ -129,6 +133,7 @@ fn sweep(g: Generator) {
     // Resumed rays find the blocks the rounds before them fetched: the GPU marks those lines
     // (Lru's recency).
     assert!(used_lines > 0, "no round found a block in a cache line");
+    assert!(kept_lines > 0, "no ray still live kept a line");
 }
 
 #[test]
@@ -240,10 +245,10 @@ fn stores_split_over_several_textures_give_the_same_image() {
 
 #[test]
 fn batches_overlap_where_their_tails_meet() {
-    // Small batches (16 tiles) of a 128x96 frame: with a cache, the next batch starts while the
-    // last rays of those in flight still wait for blocks, and their rounds are shared. The
-    // images are those of the replicated model, the same with overlapping off, and a one-line
-    // cache still finishes.
+    // Small batches (32 tiles, two rows of a 128x96 frame): with a cache, the next batch starts
+    // while the last rays of those in flight still wait for blocks, and their rounds are
+    // shared. The images are those of the replicated model, the same with overlapping off, and
+    // a one-line cache still finishes.
     let gpu = gpu();
     let (p, basis, reference) = rm_128x96(&gpu);
     let caches = [
@@ -264,7 +269,7 @@ fn batches_overlap_where_their_tails_meet() {
         };
         let frames = |overlap_batches| {
             let s = Settings {
-                max_batch_rays: 1024,
+                max_batch_rays: 2048,
                 overlap_batches: if overlap_batches {
                     OverlapMode::Always
                 } else {
@@ -300,7 +305,7 @@ fn batches_overlap_where_their_tails_meet() {
             assert!(on[0].fault_rounds < off[0].fault_rounds, "{what}");
             // By default only an associative cache overlaps batches.
             let s = Settings {
-                max_batch_rays: 1024,
+                max_batch_rays: 2048,
                 ..Settings::default()
             };
             let mut t = p.tracer_dc(&gpu, s, &o).unwrap();

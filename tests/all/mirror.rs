@@ -9,7 +9,7 @@ use dcrt::gpu::probe::run_mirror;
 use dcrt::mirror::colormap::{bin, colormap, srgb_color};
 use dcrt::mirror::offset::offset_ray_with;
 use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
-use dcrt::mirror::tiles::tile_pixel;
+use dcrt::mirror::tiles::{TILE, Tiling, tile_pixel};
 use dcrt::shading::Sampler;
 
 /// Test inputs: coordinates, normals and samples.
@@ -75,8 +75,12 @@ fn cases(n: usize) -> Vec<MirrorCase> {
 fn params() -> Params {
     Params {
         seed: 0xdead_beef,
+        // A rectangle 3 x 30 tiles in bands 2 wide: the slots run into the second band, which
+        // goes bottom to top.
         first_tile: 5,
         tiles_x: 3,
+        rect_h: 30 * TILE - 3,
+        band_tiles: 2,
         ..Params::default()
     }
 }
@@ -111,7 +115,12 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
                 s.map(f32::to_bits),
                 "sample2 {sampler:?}, case {i}"
             );
-            let t = tile_pixel(p.first_tile, p.tiles_x, i as u32);
+            let tiling = Tiling {
+                tiles_x: p.tiles_x,
+                tiles_y: p.rect_h.div_ceil(TILE),
+                band: p.band_tiles,
+            };
+            let t = tile_pixel(p.first_tile, tiling, i as u32);
             assert_eq!((r.words[1], r.words[2]), t, "tile_pixel, slot {i}");
         }
     }

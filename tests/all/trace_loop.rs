@@ -63,6 +63,32 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
 }
 
 #[test]
+fn batches_in_bands_give_the_same_image() {
+    // 384x48 pixels (48 x 6 tiles) in batches of 16 tiles would be stripes 48 times wider than
+    // tall: they are traced as 4x4-tile patches in bands 4 tiles wide, every other band upward,
+    // and each pixel lands where one batch of the whole image puts it.
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let (a, sa) = render(&gpu, &prepared, &camera, 384, 48, Settings::default());
+    let banded = Settings {
+        max_batch_rays: 64 * 16,
+        ..Settings::default()
+    };
+    let mut tracer = prepared.tracer(&gpu, banded).unwrap();
+    let (b, sb) = tracer
+        .render(&camera.basis(384, 48), [0.1, 0.2, 0.3])
+        .unwrap();
+    assert_eq!(sa.batches, 1);
+    assert_eq!(sb.batches, 18);
+    assert_eq!(tracer.params().band_tiles, 4, "bands, not rows");
+    assert_eq!(sa.steps, sb.steps);
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
+    }
+}
+
+#[test]
 fn step_budget_is_bounded() {
     let gpu = gpu();
     let (model, _) = rm();
