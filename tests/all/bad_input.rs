@@ -377,6 +377,19 @@ fn messages_say_their_cause_once() {
         &["--replicate-blocks", "nodes"],
         &["--replicate-blocks nodes needs a distributed cache"],
     );
+    // So are a cache's size and mapping.
+    fails(
+        &d,
+        &s,
+        &["--cache", "1/4"],
+        &["--cache 1/4 needs a distributed cache"],
+    );
+    fails(
+        &d,
+        &s,
+        &["--cache-map", "lru"],
+        &["--cache-map needs a distributed cache"],
+    );
 }
 
 /// A small legacy VTK file: two triangles, point array "p", cell array "c".

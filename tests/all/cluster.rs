@@ -582,6 +582,12 @@ fn virtual_ranks_are_refused_under_mpirun() {
         err.contains("--replicate-blocks nodes needs --cache"),
         "{err}"
     );
+    // Nor would a mapping of cache lines.
+    let map = [&args[..], &["--cache-map", "lru"]].concat();
+    let out = mpirun(3, SHARED, &map, &[], 60).out;
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("--cache-map needs --cache"), "{err}");
     assert!(!png.exists(), "no output on a refused run");
 }
 

@@ -254,8 +254,9 @@ struct DcArgs {
     /// with --virtual-ranks; under mpirun, giving it turns the distributed cache on.
     #[arg(long)]
     cache: Option<String>,
-    #[arg(long, value_enum, default_value_t = CacheMap::Ize)]
-    cache_map: CacheMap,
+    /// How borrowed blocks map to cache lines (default ize).
+    #[arg(long, value_enum)]
+    cache_map: Option<CacheMap>,
     /// Everything resident, no cache (the default without --virtual-ranks).
     #[arg(long, conflicts_with = "virtual_ranks")]
     replicate: bool,
@@ -276,6 +277,12 @@ impl DcArgs {
                     self.replicate_name()
                 );
             }
+            if let Some(what) = self.cache_option() {
+                bail!(
+                    "{what} needs a distributed cache: give --virtual-ranks N (under mpirun, \
+                     --cache); without one every block is resident"
+                );
+            }
             return Ok(None);
         };
         if n == 0 {
@@ -292,9 +299,22 @@ impl DcArgs {
             ranks: n,
             rank: self.rank,
             cache: CacheSize::parse(self.cache.as_deref().unwrap_or("1/8"))?,
-            map: self.cache_map,
+            map: self.map(),
             replicate: self.replicate_blocks,
         }))
+    }
+
+    fn map(&self) -> CacheMap {
+        self.cache_map.unwrap_or(CacheMap::Ize)
+    }
+
+    /// The cache option given, if any (`--cache` first), for a refusal where no cache is made.
+    fn cache_option(&self) -> Option<String> {
+        match (&self.cache, self.cache_map) {
+            (Some(c), _) => Some(format!("--cache {c}")),
+            (None, Some(_)) => Some("--cache-map".into()),
+            (None, None) => None,
+        }
     }
 
     fn replicate_name(&self) -> String {
@@ -513,13 +533,17 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
     let cache = match &a.dc.cache {
         Some(s) => Some(dcrt::cluster::CacheOptions {
             size: CacheSize::parse(s)?,
-            map: a.dc.cache_map,
+            map: a.dc.map(),
             replicate: a.dc.replicate_blocks,
         }),
         None if a.dc.replicate_blocks != Replicate::Root => bail!(
             "--replicate-blocks {} needs --cache under mpirun: without a cache every rank holds \
              the whole model",
             a.dc.replicate_name()
+        ),
+        None if a.dc.cache_map.is_some() => bail!(
+            "--cache-map needs --cache under mpirun: without a cache every rank holds the whole \
+             model"
         ),
         None => None,
     };
