@@ -30,7 +30,8 @@ pub struct Batch {
     pub readback: wgpu::Buffer,
     /// Two GPU timestamps around each submission's trace rounds, and their resolve buffer.
     pub timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
-    /// A `FaultHeader` and the fault list; one waiter count per cache line.
+    /// A `FaultHeader` and the fault list; per cache line the waiting rays, then `line_used`'s
+    /// two halves (used, kept).
     pub fault_readback: wgpu::Buffer,
     pub waiter_readback: wgpu::Buffer,
     pub pixel_readback: wgpu::Buffer,

@@ -413,7 +413,7 @@ impl Tracer<'_> {
     }
 
     /// Copies a round's fault list, the lines' waiting rays and then which lines the round used
-    /// into the readback buffers `serve_faults` reads.
+    /// and which its rays still live keep into the readback buffers `serve_faults` reads.
     fn copy_faults(&self, enc: &mut wgpu::CommandEncoder) {
         let Some(dc) = &self.dc else {
             return;
