@@ -277,7 +277,9 @@ impl DcArgs {
                     self.replicate_name()
                 );
             }
-            if let Some(what) = self.cache_option() {
+            // One rank under mpirun takes the cluster's command line: it owns every block.
+            let alone = dcrt::cluster::launched_ranks().is_none();
+            if let Some(what) = self.cache_option().filter(|_| alone) {
                 bail!(
                     "{what} needs a distributed cache: give --virtual-ranks N (under mpirun, \
                      --cache); without one every block is resident"
