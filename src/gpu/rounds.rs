@@ -10,6 +10,7 @@ use super::frame::Rect;
 use super::kernels::Dispatch;
 use super::layout::{FaultHeader, Pixel, RoundReadback, Stats};
 use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Next, RectSource, Tracer};
+use crate::dc::CacheMap;
 use crate::dc::trace::Round;
 use crate::error::{Error, Result};
 use crate::mirror::tiles::Tiling;
@@ -188,8 +189,8 @@ impl Tracer<'_> {
 
     /// Traces and shades the rectangles `source` hands out, batches of them overlapping
     /// (docs/ARCHITECTURE.md, Overlapping batches): when the live rays of every batch in flight
-    /// are down to a `TAIL_SHARE`th of those it started with and the last round used at most
-    /// half the cache's lines, the next batch (of this rectangle, or of the next one the source
+    /// are down to a `TAIL_SHARE`th of those it started with (and, unless the cache is `lru`,
+    /// the last round used at most half the cache's lines), the next batch (of this rectangle, or of the next one the source
     /// has) starts in a free lane, and each round dispatches `trace` in every lane with a batch
     /// and serves their faults together. A batch whose rays are all done is resolved, shaded and
     /// read back in its lane; a rectangle whose batches are all done goes to `source.done`. With
@@ -209,16 +210,23 @@ impl Tracer<'_> {
         let mut open: Vec<Option<OpenRect>> = Vec::new();
         let mut ended = false;
         let (mut passed, mut round) = (0, 0);
-        // Lines the last round used: a new batch starts only while those in flight leave at
-        // least half the cache free.
+        // Lines the last round used: with a direct-mapped cache a new batch starts only while
+        // those in flight leave at least half of it free. `lru` needs no such room: it keeps
+        // the lines the tails' live rays use (`CachePolicy::mark_used`), and waiting for room
+        // left a round with a few hundred rays after every batch (rm 3M at 1/8: 14.0 fault
+        // rounds a frame with the wait, 12.0 without; docs/ARCHITECTURE.md).
         let mut used_lines = 0;
         let lines = self.dc.as_ref().map_or(0, |dc| dc.policy.lines());
+        let keeps_tails = self
+            .dc
+            .as_ref()
+            .is_some_and(|dc| dc.policy.map() == CacheMap::Lru);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
         loop {
             let t = Instant::now();
             let busy = runs.iter().any(Option::is_some);
-            let room = !busy || used_lines * 2 <= lines;
+            let room = !busy || keeps_tails || used_lines * 2 <= lines;
             let tails = runs.iter().flatten().all(LaneRun::in_tail) && room;
             let free = runs.iter().position(Option::is_none);
             if tails && free.is_some() && pending.is_empty() && !ended {
