@@ -9,14 +9,17 @@ use super::batch::{Batch, TILE_RAYS, fault_bytes};
 use super::frame::Rect;
 use super::kernels::Dispatch;
 use super::layout::{FaultHeader, Pixel, RoundReadback, Stats};
-use super::tracer::{BoundKernels, FrameStats, Gen, MAX_STACK, Next, RectSource, Tracer};
+use super::tracer::{
+    BoundKernels, FrameStats, Gen, MAX_STACK, MIN_FIT_PIXELS, Next, RectSource, Tracer,
+};
 use crate::dc::CacheMap;
 use crate::dc::trace::Round;
 use crate::error::{Error, Result};
-use crate::mirror::tiles::Tiling;
+use crate::mirror::tiles::{TILE, Tiling, tile_pixel};
 use crate::scene::CameraBasis;
 use std::collections::VecDeque;
 use std::mem::{offset_of, size_of};
+use std::ops::{Range, RangeInclusive};
 use std::time::Instant;
 
 const WORKGROUP: u32 = 64;
@@ -209,7 +212,9 @@ impl Tracer<'_> {
         let mut pending: VecDeque<LaneRun> = VecDeque::new();
         let mut open: Vec<Option<OpenRect>> = Vec::new();
         let mut ended = false;
-        let (mut passed, mut round) = (0, 0);
+        let mut round = 0;
+        // Tiles handed out and done, for the progress callback.
+        let (mut total_tiles, mut done_tiles) = (0u64, 0u64);
         // Lines the last round used: with a direct-mapped cache a new batch starts only while
         // those in flight leave at least half of it free. `lru` needs no such room: it keeps
         // the lines the tails' live rays use (`CachePolicy::mark_used`), and waiting for room
@@ -234,14 +239,13 @@ impl Tracer<'_> {
                     Next::Rect(rect) => {
                         let plan = self.begin_rect(basis, background, rect)?;
                         let slot = open.len();
-                        let mut batches = 0;
-                        for first in (0..plan.tiles).step_by(plan.per_batch as usize) {
-                            let tiles = plan.per_batch.min(plan.tiles - first);
-                            pending.push_back(LaneRun::new(rect, plan.tiling, slot, first, tiles));
-                            batches += 1;
-                        }
+                        // All its tiles, waiting; each batch takes its share when it starts.
+                        let mut all = LaneRun::new(rect, plan.tiling, slot, 0, plan.tiles);
+                        all.per_batch = plan.per_batch;
+                        pending.push_back(all);
+                        total_tiles += u64::from(plan.tiles);
                         let pixels = vec![Pixel::default(); rect.pixels()];
-                        open.push(Some(OpenRect { pixels, batches }));
+                        open.push(Some(OpenRect { pixels, batches: 1 }));
                         stats.rays += rect.pixels() as u64;
                         stats.samples = self.params.spp;
                         self.several_batches |= open.len() > 1;
@@ -251,7 +255,18 @@ impl Tracer<'_> {
                 }
             }
             let start = free.filter(|_| tails);
-            if let Some((l, run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
+            if let Some((l, mut run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
+                let n = self.batch_tiles(&run);
+                if n < run.tiles {
+                    let mut rest =
+                        LaneRun::new(run.rect, run.tiling, run.slot, run.first + n, run.tiles - n);
+                    rest.per_batch = run.per_batch;
+                    pending.push_front(rest);
+                    run.tiles = n;
+                    if let Some(r) = open[run.slot].as_mut() {
+                        r.batches += 1;
+                    }
+                }
                 self.set_rect(run.rect, run.tiling);
                 self.params.first_tile = run.first;
                 self.params.batch_rays = run.tiles * TILE_RAYS;
@@ -287,6 +302,7 @@ impl Tracer<'_> {
             let mut live = 0;
             let mut gpu_ms = None;
             let mut done = Vec::new();
+            let mut dispatched = Vec::new();
             for &l in &active {
                 let data = gpu.map_read(&self.lane(l).0.readback)?;
                 let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
@@ -295,6 +311,13 @@ impl Tracer<'_> {
                     gpu_ms = self.round_gpu_ms(&r, stats);
                 }
                 let run = runs[l].as_mut().expect("an active lane has a batch");
+                // The rays this round traced in the lane.
+                let traced = if run.started.is_none() {
+                    r.started
+                } else {
+                    run.live
+                };
+                dispatched.push((l, traced));
                 run.started.get_or_insert(r.started);
                 run.live = r.counter.count;
                 live += run.live;
@@ -309,6 +332,19 @@ impl Tracer<'_> {
             let waiters = gpu.map_read(&self.batch.waiter_readback)?;
             let used: &[u8] = &waiters[4 * lines as usize..8 * lines as usize];
             used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
+            let header: FaultHeader =
+                bytemuck::pod_read_unaligned(&faults[..size_of::<FaultHeader>()]);
+            // The round's faults, shared among the lanes by the rays each traced.
+            let all: u64 = dispatched.iter().map(|&(_, n)| u64::from(n)).sum();
+            for &(l, n) in &dispatched {
+                let run = runs[l].as_mut().expect("an active lane has a batch");
+                run.faults += f64::from(header.count) * f64::from(n) / (all.max(1) as f64);
+            }
+            for &l in &done {
+                let run = runs[l].as_ref().expect("a finished lane has a batch");
+                let (rect, tiling, faults) = (run.rect, run.tiling, run.faults);
+                self.note_batch_faults(rect, tiling, run.first..run.first + run.tiles, faults);
+            }
             self.serve_faults(
                 &faults,
                 &waiters,
@@ -338,14 +374,49 @@ impl Tracer<'_> {
                     source.done(run.rect, pixels)?;
                 }
                 stats.shade_seconds += t.elapsed().as_secs_f64();
-                passed += 1;
+                done_tiles += u64::from(run.tiles);
                 if let (Some(p), Some(n)) = (self.progress.as_mut(), passes) {
-                    p(passed, n);
+                    // Batches vary in size: the share of tiles done, in passes.
+                    p((done_tiles * n).div_ceil(total_tiles.max(1)), n);
                 }
             }
             enc = gpu.device.create_command_encoder(&Default::default());
             self.clear_faults(&mut enc);
         }
+    }
+
+    /// The tiles the next batch of `run`'s rectangle takes. With a short cache and last frame's
+    /// fault density of the rectangle, as many as are expected to fault `FILL_SHARE` times the
+    /// cache's lines (`FaultDensity::batch`), so that a batch over a dense part of the image is
+    /// smaller than one over a sparse part; otherwise the rectangle's even share
+    /// (`RectPlan::per_batch`).
+    fn batch_tiles(&self, run: &LaneRun) -> u32 {
+        let even = run.per_batch.min(run.tiles);
+        let (Some(d), Some(dc)) = (&self.density, &self.dc) else {
+            return even;
+        };
+        if d.rect != run.rect || !self.fits_by_batches() {
+            return even;
+        }
+        let target = f64::from(dc.policy.lines()) * FILL_SHARE;
+        let most = run.tiles.min((self.batch.rays_cap / TILE_RAYS).max(1));
+        let least = MIN_FIT_PIXELS / TILE_RAYS;
+        d.batch(run.tiling, run.first, least..=most, target)
+    }
+
+    /// Records the faults of a finished batch (`tiles` of `rect` in `tiling`'s order) into this
+    /// frame's fault density, for the next frame's `batch_tiles`.
+    fn note_batch_faults(&mut self, rect: Rect, tiling: Tiling, tiles: Range<u32>, faults: f64) {
+        if self.dc.is_none() || !self.fits_by_batches() {
+            return;
+        }
+        let d = self
+            .next_density
+            .get_or_insert_with(|| FaultDensity::new(rect, tiling));
+        if d.rect != rect {
+            *d = FaultDensity::new(rect, tiling);
+        }
+        d.note(tiling, tiles, faults);
     }
 
     /// Resolves albedos, shades and reads back the current lane's traced batch.
@@ -560,6 +631,10 @@ struct LaneRun {
     started: Option<u32>,
     live: u32,
     rounds: u32,
+    /// Tiles a batch of the rectangle takes where no fault density is known.
+    per_batch: u32,
+    /// Its share of the faults of the rounds it took part in (by the rays it traced).
+    faults: f64,
 }
 
 /// A rectangle with batches in flight or waiting: its pixels so far and the batches left.
@@ -580,6 +655,8 @@ impl LaneRun {
             started: None,
             live: 0,
             rounds: 0,
+            per_batch: tiles,
+            faults: 0.0,
         }
     }
 
@@ -587,5 +664,114 @@ impl LaneRun {
     fn in_tail(&self) -> bool {
         self.started
             .is_some_and(|s| u64::from(self.live) * u64::from(TAIL_SHARE) <= u64::from(s))
+    }
+}
+
+/// How many times the cache's lines a batch is sized to fault on (`Tracer::batch_tiles`): lines
+/// are reused within a batch's rounds as its rays finish, so its faults may exceed them. rm 3M at
+/// 1024x1024, rank 0 of 8, 8-frame orbits: 1.5 took 12.2 fault rounds a warm frame at 1/8 with the
+/// nodes replicated, 2.0 11.5, 2.5 11.3, with blocks fetched 10,094, 10,291 and 10,432; at 1/32
+/// 44.3, 43.0 and 42.0 rounds with 10,730, 11,165 and 11,608 blocks (README, Benchmarks).
+const FILL_SHARE: f64 = 2.0;
+
+/// Where a rectangle's blocks are dense: per 8x8 tile (by position, whatever the batch order),
+/// the faults of the batch that traced it in the last frame over that batch's tiles.
+pub(super) struct FaultDensity {
+    rect: Rect,
+    tiles_x: u32,
+    per_tile: Vec<f64>,
+}
+
+impl FaultDensity {
+    fn new(rect: Rect, tiling: Tiling) -> FaultDensity {
+        FaultDensity {
+            rect,
+            tiles_x: tiling.tiles_x,
+            per_tile: vec![0.0; tiling.tiles() as usize],
+        }
+    }
+
+    /// The slot of batch tile `t` of `tiling`.
+    fn slot(&self, tiling: Tiling, t: u32) -> usize {
+        let (x, y) = tile_pixel(t, tiling, 0);
+        ((y / TILE) * self.tiles_x + x / TILE) as usize
+    }
+
+    /// Spreads the faults of a batch of `tiles` evenly over them.
+    fn note(&mut self, tiling: Tiling, tiles: Range<u32>, faults: f64) {
+        let per_tile = faults / f64::from(tiles.len().max(1) as u32);
+        for t in tiles {
+            let i = self.slot(tiling, t);
+            if let Some(p) = self.per_tile.get_mut(i) {
+                *p = per_tile;
+            }
+        }
+    }
+
+    /// The tiles a batch starting at tile `first` of `tiling` takes: until their faults reach
+    /// `target`, within `size` (its end also where the rectangle's tiles end).
+    fn batch(&self, tiling: Tiling, first: u32, size: RangeInclusive<u32>, target: f64) -> u32 {
+        let (least, most) = (*size.start(), *size.end());
+        let (mut n, mut expected) = (0, 0.0);
+        while n < most && (n < least || expected < target) {
+            expected += self
+                .per_tile
+                .get(self.slot(tiling, first + n))
+                .copied()
+                .unwrap_or(0.0);
+            n += 1;
+        }
+        n
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_batch_takes_tiles_until_their_faults_reach_the_target() {
+        // 8x4 tiles in rows; every tile of the batch that traced them faulted 10 times.
+        let rows = Tiling::new(64, 32, 32);
+        let mut d = FaultDensity::new(Rect::whole(64, 32), rows);
+        d.note(rows, 0..32, 320.0);
+        assert_eq!(d.batch(rows, 0, 1..=32, 45.0), 5);
+        assert_eq!(d.batch(rows, 0, 1..=32, 50.0), 5);
+        assert_eq!(d.batch(rows, 0, 1..=32, 51.0), 6);
+        // At least `least` tiles, at most `most`.
+        assert_eq!(d.batch(rows, 0, 8..=32, 5.0), 8);
+        assert_eq!(d.batch(rows, 0, 1..=3, 1e9), 3);
+    }
+
+    #[test]
+    fn dense_tiles_make_smaller_batches() {
+        // The first two rows faulted 100 times over 16 tiles, the last two 16 times.
+        let rows = Tiling::new(64, 32, 16);
+        let mut d = FaultDensity::new(Rect::whole(64, 32), rows);
+        d.note(rows, 0..16, 100.0);
+        d.note(rows, 16..32, 16.0);
+        assert_eq!(d.batch(rows, 0, 1..=32, 25.0), 4);
+        assert_eq!(d.batch(rows, 16, 1..=16, 25.0), 16);
+        assert_eq!(d.batch(rows, 16, 1..=16, 8.0), 8);
+    }
+
+    #[test]
+    fn densities_belong_to_tile_positions_not_to_batch_order() {
+        // Noted in one order (bands 2 tiles wide, every other one upward), read in another
+        // (rows): the faults stay with the tiles that made them.
+        let (w, h) = (64, 32);
+        let bands = Tiling {
+            tiles_x: 8,
+            tiles_y: 4,
+            band: 2,
+        };
+        let rows = Tiling::new(w, h, 32);
+        let mut d = FaultDensity::new(Rect::whole(w, h), bands);
+        // The first band: tiles x 0..2 of every row, 8 faults each.
+        d.note(bands, 0..8, 64.0);
+        for t in 0..32 {
+            let expect = if t % 8 < 2 { 8.0 } else { 0.0 };
+            assert_eq!(d.per_tile[d.slot(rows, t)], expect, "tile {t}");
+        }
     }
 }

@@ -45,7 +45,7 @@ const DEFAULT_MAX_BATCH_RAYS: u32 = 1 << 20;
 pub const DEFER_SLOTS: u32 = 4;
 /// The fewest pixels a batch is cut to so that its blocks fit the cache: the top of the tree is
 /// fetched again for every batch, and a smaller batch's rays share too little of the rest.
-const MIN_FIT_PIXELS: u32 = 4096;
+pub(super) const MIN_FIT_PIXELS: u32 = 4096;
 const WORKGROUP: u32 = 64;
 /// The largest number of distinct faults one round records (more fault again next round).
 const FAULT_CAP: u32 = 1 << 16;
@@ -244,6 +244,10 @@ pub struct Tracer<'g> {
     /// borrowed block, or a frame has ended and sized `fit_pixels`. Only then do batches overlap:
     /// two batches too big for the cache evict each other's blocks.
     batches_fit: bool,
+    /// With a short cache, last frame's first-round faults per tile, and this frame's so far
+    /// (`Tracer::batch_tiles`).
+    pub(super) density: Option<super::rounds::FaultDensity>,
+    pub(super) next_density: Option<super::rounds::FaultDensity>,
     /// Whether a `render_rect` call of the frame took more than one batch: spare lanes are
     /// worth their memory (`add_spare_lanes`).
     pub(super) several_batches: bool,
@@ -526,6 +530,8 @@ impl<'g> Tracer<'g> {
             constants,
             progress: None,
             fit_pixels: None,
+            density: None,
+            next_density: None,
             batches_fit: fits,
             several_batches: false,
         };
@@ -888,6 +894,7 @@ impl<'g> Tracer<'g> {
                 .map_or(0, |dc| u64::from(dc.policy.lines()));
             self.params.dc_defer = defer_slots(self.settings, stats.distinct_blocks <= lines);
             self.batches_fit = true;
+            self.density = self.next_density.take();
             if std::mem::take(&mut self.several_batches) {
                 self.add_spare_lanes()?;
             }
@@ -900,6 +907,12 @@ impl<'g> Tracer<'g> {
             });
         }
         Ok(())
+    }
+
+    /// Whether batches are sized to the cache (`fit_pixels`): the frame's blocks outnumber its
+    /// lines.
+    pub(super) fn fits_by_batches(&self) -> bool {
+        self.fit_pixels.is_some()
     }
 
     /// Submits one direct dispatch of a shading kernel over the batch's pixel slots (no wait).
