@@ -215,11 +215,7 @@ impl Tracer<'_> {
         let mut round = 0;
         // Tiles handed out and done, for the progress callback.
         let (mut total_tiles, mut done_tiles) = (0u64, 0u64);
-        // Lines the last round used: with a direct-mapped cache a new batch starts only while
-        // those in flight leave at least half of it free. `lru` needs no such room: it keeps
-        // the lines the tails' live rays use (`CachePolicy::mark_used`), and waiting for room
-        // left a round with a few hundred rays after every batch (rm 3M at 1/8: 14.0 fault
-        // rounds a frame with the wait, 12.0 without; docs/ARCHITECTURE.md).
+        // Lines the last round used (`next_batch_may_start`).
         let mut used_lines = 0;
         let lines = self.dc.as_ref().map_or(0, |dc| dc.policy.lines());
         let keeps_tails = self
@@ -231,8 +227,8 @@ impl Tracer<'_> {
         loop {
             let t = Instant::now();
             let busy = runs.iter().any(Option::is_some);
-            let room = !busy || keeps_tails || used_lines * 2 <= lines;
-            let tails = runs.iter().flatten().all(LaneRun::in_tail) && room;
+            let in_tail = runs.iter().flatten().all(LaneRun::in_tail);
+            let tails = next_batch_may_start(busy, in_tail, keeps_tails, used_lines, lines);
             let free = runs.iter().position(Option::is_none);
             if tails && free.is_some() && pending.is_empty() && !ended {
                 match source.next(busy)? {
@@ -612,6 +608,23 @@ fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
     stats.max_live_rounds = stats.max_live_rounds.max(rounds);
 }
 
+/// Whether the next batch may start: nothing is in flight, or every batch in flight is down to
+/// its tail (`in_tail`) and, with a direct-mapped cache, the last round used at most half of the
+/// `lines` (a new batch's blocks would evict, by their place, those the tails wait for). A cache
+/// that keeps the tails' lines (`lru`, `CachePolicy::mark_used`) needs no such room: waiting for
+/// it left a round of a few hundred rays after every batch (rm 3M at 1024x1024, rank 0 of 8,
+/// nodes replicated, 1/8: 14.0 fault rounds a frame with the wait, 12.0 without; README,
+/// Benchmarks).
+fn next_batch_may_start(
+    busy: bool,
+    in_tail: bool,
+    keeps_tails: bool,
+    used_lines: u32,
+    lines: u32,
+) -> bool {
+    !busy || (in_tail && (keeps_tails || used_lines * 2 <= lines))
+}
+
 /// The next batch starts when every batch in flight is down to this share of its rays (1/16):
 /// the last rounds of a batch carry few rays, each climbing its own chain of absent blocks.
 const TAIL_SHARE: u32 = 16;
@@ -728,6 +741,18 @@ impl FaultDensity {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_a_direct_mapped_cache_waits_for_room() {
+        // Nothing in flight: start. Batches in flight not yet down to their tails: wait.
+        assert!(next_batch_may_start(false, false, false, 100, 100));
+        assert!(!next_batch_may_start(true, false, true, 0, 100));
+        // Tails whose last round used most of the lines: lru starts the next batch, a
+        // direct-mapped cache waits until at most half the lines were used.
+        assert!(next_batch_may_start(true, true, true, 90, 100));
+        assert!(!next_batch_may_start(true, true, false, 90, 100));
+        assert!(next_batch_may_start(true, true, false, 50, 100));
+    }
 
     #[test]
     fn a_batch_takes_tiles_until_their_faults_reach_the_target() {
