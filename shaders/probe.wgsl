@@ -48,7 +48,7 @@ fn main() {
     put(p.rect_x); put(p.rect_y); put(p.rect_w); put(p.rect_h);
     put(p.pad0); put(p.pad1); put(p.dc_defer); put(p.opaque_zero);
     put(p.sample); put(p.seed); put(p.flags); put(p.spp);
-    put(p.attr_block0); put(p.albedo_stride); put(p.band_tiles); put(p.pad5);
+    put(p.attr_block0); put(p.albedo_stride); put(p.band_tiles); put(p.lane);
     for (var i = 0u; i < p.pad0; i++) {
         let l = node_loc(i);
         let n = node_at(locate(l.x), l.y);

@@ -161,7 +161,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if DC {
             let wb = rays[ray_index].g[4].y;
             if wb != NONE && block_rows[wb] == NONE {
-                request(wb);
+                request(wb, requester(ray_index));
                 parked = true;
                 again = true;
             }
@@ -396,11 +396,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if DC && r.status == LIVE {
             for (var i = 0u; i < deferred(r); i++) {
                 if ((set_aside_now >> i) & 1u) != 0u {
-                    request(entry_block(unpack_entry(stacks[slots + i])));
+                    request(entry_block(unpack_entry(stacks[slots + i])), requester(ray_index));
                 }
             }
             if wait_fault {
-                request(r.wait_block);
+                request(r.wait_block, requester(ray_index));
             }
             keep_line(tri_row);
         }

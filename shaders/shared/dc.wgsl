@@ -46,7 +46,7 @@ fn cache_line(k: u32) -> u32 {
 fn locate(k: u32) -> u32 {
     let row = lookup(k);
     if DC && row == NONE {
-        request(k);
+        request(k, NONE);
     }
     return row;
 }
@@ -72,6 +72,13 @@ fn lookup(k: u32) -> u32 {
     return NONE;
 }
 
+// A fault's requester: ray slot `ray` of the batch in lane params.lane. Mirrored by
+// gpu::rounds::requester.
+fn requester(ray: u32) -> u32 {
+    return (params.lane << REQUESTER_LANE_SHIFT) | ray;
+}
+const REQUESTER_LANE_SHIFT: u32 = 28u;
+
 // Marks the cache line of `row` (a block row, or NONE) as one a ray still live needs again: the
 // leaves it set aside on its stack are mostly next to the last one it tested.
 fn keep_line(row: u32) {
@@ -80,14 +87,18 @@ fn keep_line(row: u32) {
     }
 }
 
-// Records a fault on block k, once per round however many rays ask.
-fn request(k: u32) {
+// Records a fault on block k, once per round however many rays ask. The ray whose request lists
+// the block is its requester, `who` (`requester`, or NONE for kernels without ray slots): the
+// list holds it at dc_fault_cap + the block's place, so the host can tell which tiles of which
+// batch need the blocks (gpu::rounds::FaultDensity).
+fn request(k: u32, who: u32) {
     atomicAdd(&waiters[cache_line(k)], 1u);
     let bit = 1u << (k % 32u);
     if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
         let i = atomicAdd(&faults.count, 1u);
         if i < params.dc_fault_cap {
             faults.blocks[i] = k;
+            faults.blocks[params.dc_fault_cap + i] = who;
         } else {
             atomicAdd(&faults.dropped, 1u);
         }

@@ -53,7 +53,9 @@ struct Params {
     albedo_stride: u32,
     // Tiles across a band of the batch order (shared/tiles.wgsl); 0: one band.
     band_tiles: u32,
-    pad5: u32,
+    // The lane of the batch this dispatch serves (0 when batches do not overlap): the high bits
+    // of a fault's requester (shared/dc.wgsl, request).
+    lane: u32,
 }
 
 // Params.flags

@@ -57,7 +57,9 @@ pub struct Params {
     pub albedo_stride: u32,
     /// Tiles across a band of the batch order (`mirror::tiles::Tiling::band`); 0: one band.
     pub band_tiles: u32,
-    pub pad5: u32,
+    /// The lane of the batch a dispatch serves: the high bits of a fault's requester
+    /// (`gpu::rounds::requester`).
+    pub lane: u32,
 }
 const _: () = assert!(std::mem::size_of::<Params>() == 208);
 

@@ -10,6 +10,7 @@ use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Scene};
+use glam::DVec3;
 
 const W: u32 = 40;
 const H: u32 = 32;
@@ -241,6 +242,73 @@ fn stores_split_over_several_textures_give_the_same_image() {
         }
         same_pixels(&reference, &frame, &what);
     }
+}
+
+#[test]
+fn faults_count_to_the_tiles_whose_rays_listed_them() {
+    // The model seen in the left part of a 128x96 frame (the camera moved right by most of the
+    // view's half-width), batches of two tile rows across it, a short cache and the nodes
+    // replicated: a ray faults only on the triangle blocks of leaves it enters. The GPU names the
+    // ray that listed each fault, so the faults go to the tiles of the left part, none to the
+    // tile columns whose pixels all miss the model, though every batch spans both.
+    let gpu = gpu();
+    let (w, h) = (128, 96);
+    let (p, mut camera) = model(Generator::Rm, 20_000);
+    let right = glam::Vec3::from(camera.basis(w, h).right)
+        .as_dvec3()
+        .normalize();
+    let (pos, focus) = (
+        DVec3::from(camera.position),
+        DVec3::from(camera.focal_point),
+    );
+    let half_width =
+        pos.distance(focus) * (camera.view_angle.to_radians() / 2.0).tan() * f64::from(w)
+            / f64::from(h);
+    let shift = 0.8 * half_width * right;
+    camera.position = (pos + shift).to_array();
+    camera.focal_point = (focus + shift).to_array();
+    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let tiles_x = w.div_ceil(8) as usize;
+    // Tile columns whose every pixel misses the model.
+    let empty_column = |tx: usize| {
+        (0..h as usize)
+            .all(|y| (tx * 8..tx * 8 + 8).all(|x| is_miss(&reference.pixels[y * w as usize + x])))
+    };
+    let empty: Vec<usize> = (0..tiles_x).filter(|&tx| empty_column(tx)).collect();
+    assert!(
+        empty.len() >= 3 && empty.len() < tiles_x - 3,
+        "empty tile columns {empty:?}"
+    );
+    let o = DcOptions {
+        ranks: 4,
+        rank: 1,
+        cache: CacheSize::parse("1/32").unwrap(),
+        map: CacheMap::Lru,
+        replicate: Replicate::Nodes,
+    };
+    let s = Settings {
+        max_batch_rays: 2048,
+        ..Settings::default()
+    };
+    let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+    assert!(t.tile_faults().is_none());
+    for f in 0..2 {
+        let (frame, _) = t.render(&camera.basis(w, h), [0.1, 0.2, 0.3]).unwrap();
+        same_pixels(&reference, &frame, &format!("frame {f}"));
+    }
+    let (rect, faults) = t
+        .tile_faults()
+        .expect("a frame in batches sized to the cache");
+    assert_eq!(rect, Rect::whole(w, h));
+    assert_eq!(faults.len(), tiles_x * h.div_ceil(8) as usize);
+    let column = |tx: usize| -> f64 { faults.iter().skip(tx).step_by(tiles_x).sum() };
+    let in_empty: f64 = empty.iter().map(|&tx| column(tx)).sum();
+    let total: f64 = faults.iter().sum();
+    assert!(total > 0.0, "no faults counted");
+    assert_eq!(
+        in_empty, 0.0,
+        "faults in empty columns {empty:?}: {faults:?}"
+    );
 }
 
 #[test]

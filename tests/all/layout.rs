@@ -91,7 +91,7 @@ fn every_member_reads_back_through_the_shader() {
         attr_block0: 125,
         albedo_stride: 126,
         band_tiles: 127,
-        pad5: 128,
+        lane: 128,
         ..base
     };
     let g = |k: u32| -> [f32; 4] { std::array::from_fn(|i| (k * 4 + i as u32) as f32 + 0.25) };
@@ -221,7 +221,7 @@ fn host_structs_match_naga_layouts() {
         "rect_y" => rect_y, "rect_w" => rect_w, "rect_h" => rect_h, "pad0" => pad0,
         "pad1" => pad1, "dc_defer" => dc_defer, "opaque_zero" => opaque_zero, "sample" => sample, "seed" => seed,
         "flags" => flags, "spp" => spp, "attr_block0" => attr_block0,
-        "albedo_stride" => albedo_stride, "band_tiles" => band_tiles, "pad5" => pad5,
+        "albedo_stride" => albedo_stride, "band_tiles" => band_tiles, "lane" => lane,
     });
     sized(w, size_of::<Params>());
     let w = same_layout!(RayState, "RayState", {
