@@ -266,7 +266,7 @@ impl Tracer<'_> {
             }
             let start = free.filter(|_| tails);
             if let Some((l, mut run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
-                let n = self.batch_tiles(&run);
+                let n = self.batch_tiles(&run, self.lane(l).0.rays_cap);
                 if n < run.tiles {
                     let mut rest =
                         LaneRun::new(run.rect, run.tiling, run.slot, run.first + n, run.tiles - n);
@@ -415,9 +415,10 @@ impl Tracer<'_> {
     /// fault density of the rectangle, as many as are expected to fault `FILL_SHARE` times the
     /// cache's lines (`FaultDensity::batch`), so that a batch over a dense part of the image is
     /// smaller than one over a sparse part; otherwise the rectangle's even share
-    /// (`RectPlan::per_batch`).
-    fn batch_tiles(&self, run: &LaneRun) -> u32 {
-        let even = run.per_batch.min(run.tiles);
+    /// (`RectPlan::per_batch`). Never more than the `lane_rays` of the lane it starts in.
+    fn batch_tiles(&self, run: &LaneRun, lane_rays: u32) -> u32 {
+        let lane_tiles = (lane_rays / TILE_RAYS).max(1);
+        let even = run.per_batch.min(run.tiles).min(lane_tiles);
         let (Some(d), Some(dc)) = (&self.density, &self.dc) else {
             return even;
         };
@@ -425,7 +426,7 @@ impl Tracer<'_> {
             return even;
         }
         let target = f64::from(dc.policy.lines()) * FILL_SHARE;
-        let most = run.tiles.min((self.batch.rays_cap / TILE_RAYS).max(1));
+        let most = run.tiles.min(lane_tiles);
         let least = MIN_FIT_PIXELS / TILE_RAYS;
         d.batch(run.tiling, run.first, least..=most, target)
     }

@@ -206,9 +206,36 @@ pub(super) struct Lane {
     pub bound: BoundKernels,
 }
 
-/// Lanes besides the current one with a cache: a batch's last rays may climb chains of absent
-/// blocks for many rounds, so two batches' tails can be in flight when the next starts.
+/// Spare lanes as large as the current one (`spare_lanes`): a batch's last rays may climb chains
+/// of absent blocks for many rounds, so two batches' tails can be in flight when the next starts.
 const SPARE_LANES: usize = 2;
+
+/// At most this many spare lanes sized to the cache's batches (`spare_lanes`).
+const MAX_FITTED_SPARES: usize = 4;
+
+/// A spare lane sized to the cache's batches holds this many times the fitted batch's pixels
+/// (`Tracer::fit_pixels`): a batch over a sparse part of the image takes more than its even share
+/// (`rounds::FaultDensity`).
+const SPARE_FIT_SHARE: u32 = 4;
+
+/// The rays a spare lane holds and how many spare lanes there are, for a current lane of
+/// `rays_cap` rays and batches fitted to `fit_pixels`. Without a fit (the cache holds every
+/// borrowed block), `SPARE_LANES` lanes as large as the current one. With one, lanes of
+/// `SPARE_FIT_SHARE` fitted batches, as many as fit in the memory of `SPARE_LANES` full lanes, at
+/// least `SPARE_LANES` and at most `MAX_FITTED_SPARES`: while three lanes hold tails, no batch
+/// can start (rm 3M at 1/32, rank 0 of 8: about 10 of 40 fault rounds a frame), and a lane's
+/// buffers (216 MB of host memory on lavapipe for 1M rays) dwarf a short cache.
+fn spare_lanes(rays_cap: u32, fit_pixels: Option<u32>) -> (u32, usize) {
+    let Some(fit) = fit_pixels else {
+        return (rays_cap, SPARE_LANES);
+    };
+    let fit = u64::from(fit.max(MIN_FIT_PIXELS)) * u64::from(SPARE_FIT_SHARE);
+    let tiles = fit.div_ceil(u64::from(TILE_RAYS)).max(1);
+    let rays = (tiles * u64::from(TILE_RAYS)).min(u64::from(rays_cap)) as u32;
+    let budget = SPARE_LANES as u64 * u64::from(rays_cap) / u64::from(rays.max(1));
+    let count = (budget as usize).clamp(SPARE_LANES, MAX_FITTED_SPARES);
+    (rays, count)
+}
 
 /// Pipeline constants fixed for a model (block addressing, DC).
 type Constants = Vec<(&'static str, f64)>;
@@ -560,10 +587,10 @@ impl<'g> Tracer<'g> {
         }
         let (gpu, lines) = (self.gpu, dc.policy.lines());
         let colored = self.kernels.albedo.is_some();
+        let (max, count) = spare_lanes(self.batch.rays_cap, self.fit_pixels);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for l in 1..=SPARE_LANES {
+        for l in 1..=count {
             let s = self.params.stack_size;
-            let max = self.settings.max_batch_rays;
             let batch = Batch::new(gpu, s, max, lines, FAULT_CAP, colored)?;
             batch.commit(&mut enc);
             let params_buf = gpu.buffer(
@@ -895,9 +922,6 @@ impl<'g> Tracer<'g> {
             self.params.dc_defer = defer_slots(self.settings, stats.distinct_blocks <= lines);
             self.batches_fit = true;
             self.density = self.next_density.take();
-            if std::mem::take(&mut self.several_batches) {
-                self.add_spare_lanes()?;
-            }
             self.fit_pixels = self.dc.as_ref().and_then(|dc| {
                 let lines = u64::from(dc.policy.lines());
                 (stats.distinct_blocks > lines).then(|| {
@@ -905,6 +929,9 @@ impl<'g> Tracer<'g> {
                     fit.min(u64::from(u32::MAX)) as u32
                 })
             });
+            if std::mem::take(&mut self.several_batches) {
+                self.add_spare_lanes()?;
+            }
         }
         Ok(())
     }
@@ -913,6 +940,12 @@ impl<'g> Tracer<'g> {
     /// lines.
     pub(super) fn fits_by_batches(&self) -> bool {
         self.fit_pixels.is_some()
+    }
+
+    /// The rays each lane holds: the current one, then the spares (`spare_lanes`).
+    pub fn lane_rays(&self) -> Vec<u32> {
+        let spares = self.spares.iter().map(|l| l.batch.rays_cap);
+        std::iter::once(self.batch.rays_cap).chain(spares).collect()
     }
 
     /// Submits one direct dispatch of a shading kernel over the batch's pixel slots (no wait).
@@ -1104,4 +1137,26 @@ pub struct RayHit {
     /// start (`mirror::offset::offset_ray(point, n, error)` spawns as the kernels do).
     pub point: [f32; 3],
     pub error: f32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spare_lanes_fit_the_batches_in_the_memory_of_two_full_ones() {
+        // No fit (the cache holds every block): two lanes as large as the current one.
+        assert_eq!(spare_lanes(364_672, None), (364_672, SPARE_LANES));
+        // rm 3M at 1/32: four fitted batches a lane, whole tiles, three lanes.
+        let (rays, count) = spare_lanes(364_672, Some(57_878));
+        assert_eq!((rays, count), (231_552, 3));
+        assert_eq!(rays % TILE_RAYS, 0);
+        assert!(rays >= 4 * 57_878 && count as u64 * u64::from(rays) <= 2 * 364_672);
+        // Tiny batches: at most four lanes; batches near the lane's size: two full lanes.
+        assert_eq!(
+            spare_lanes(364_672, Some(100)),
+            (4 * MIN_FIT_PIXELS, MAX_FITTED_SPARES)
+        );
+        assert_eq!(spare_lanes(364_672, Some(231_406)), (364_672, SPARE_LANES));
+    }
 }

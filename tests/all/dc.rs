@@ -31,6 +31,26 @@ fn rm_128x96(gpu: &dcrt::gpu::Gpu) -> (Prepared, dcrt::scene::CameraBasis, Frame
     (p, camera.basis(w, h), reference)
 }
 
+/// rm 20k with the camera moved right by most of the view's half-width: the model fills the left
+/// part of a `w` x `h` frame, the right part sees nothing.
+fn rm_on_the_left(w: u32, h: u32) -> (Prepared, Camera) {
+    let (p, mut camera) = model(Generator::Rm, 20_000);
+    let right = glam::Vec3::from(camera.basis(w, h).right)
+        .as_dvec3()
+        .normalize();
+    let (pos, focus) = (
+        DVec3::from(camera.position),
+        DVec3::from(camera.focal_point),
+    );
+    let half_width =
+        pos.distance(focus) * (camera.view_angle.to_radians() / 2.0).tan() * f64::from(w)
+            / f64::from(h);
+    let shift = 0.8 * half_width * right;
+    camera.position = (pos + shift).to_array();
+    camera.focal_point = (focus + shift).to_array();
+    (p, camera)
+}
+
 fn sweep(g: Generator) {
     let gpu = gpu();
     let (p, camera) = model(g, 20_000);
@@ -253,20 +273,7 @@ fn faults_count_to_the_tiles_whose_rays_listed_them() {
     // tile columns whose pixels all miss the model, though every batch spans both.
     let gpu = gpu();
     let (w, h) = (128, 96);
-    let (p, mut camera) = model(Generator::Rm, 20_000);
-    let right = glam::Vec3::from(camera.basis(w, h).right)
-        .as_dvec3()
-        .normalize();
-    let (pos, focus) = (
-        DVec3::from(camera.position),
-        DVec3::from(camera.focal_point),
-    );
-    let half_width =
-        pos.distance(focus) * (camera.view_angle.to_radians() / 2.0).tan() * f64::from(w)
-            / f64::from(h);
-    let shift = 0.8 * half_width * right;
-    camera.position = (pos + shift).to_array();
-    camera.focal_point = (focus + shift).to_array();
+    let (p, camera) = rm_on_the_left(w, h);
     let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
     let tiles_x = w.div_ceil(8) as usize;
     // Tile columns whose every pixel misses the model.
@@ -309,6 +316,48 @@ fn faults_count_to_the_tiles_whose_rays_listed_them() {
         in_empty, 0.0,
         "faults in empty columns {empty:?}: {faults:?}"
     );
+}
+
+#[test]
+fn spare_lanes_sized_to_the_batches_trace_the_same_image() {
+    // With the default batch size and a 1/32 cache, batches are fitted far below a lane's size:
+    // the spare lanes are made that small (smaller than the frame), as many as fit in the memory
+    // of two full lanes, and batches run in them, overlapping; the image stays the replicated one
+    // in every frame. (That a batch takes no more tiles than its lane holds is `batch_tiles`'s
+    // `most`, tested in gpu::rounds.)
+    let gpu = gpu();
+    let (w, h) = (256, 160);
+    let (p, camera) = rm_on_the_left(w, h);
+    let (reference, _) = render(&gpu, &p, &camera, w, h, Settings::default());
+    let basis = camera.basis(w, h);
+    let o = DcOptions {
+        ranks: 4,
+        rank: 1,
+        cache: CacheSize::parse("1/32").unwrap(),
+        map: CacheMap::Lru,
+        replicate: Default::default(),
+    };
+    let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
+    let mut shared = 0;
+    for f in 0..3 {
+        let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        same_pixels(&reference, &frame, &format!("frame {f}"));
+        // The first frame, before its blocks are counted, is one batch.
+        assert!(
+            f == 0 || stats.batches > 1,
+            "frame {f}: {} batches",
+            stats.batches
+        );
+        shared += stats.shared_rounds;
+    }
+    let lanes = t.lane_rays();
+    assert!(lanes.len() > 3, "{lanes:?}");
+    assert!(lanes[1..].iter().all(|&r| r < lanes[0]), "{lanes:?}");
+    assert!(
+        lanes[1] < w * h,
+        "{lanes:?}: the spare lanes do not hold the frame"
+    );
+    assert!(shared > 0);
 }
 
 #[test]
