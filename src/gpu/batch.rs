@@ -185,6 +185,21 @@ impl Batch {
         }
     }
 
+    /// Bytes of the batch's buffers (GPU and read-back).
+    pub fn bytes(&self) -> u64 {
+        let mut all = vec![
+            &self.rays,
+            &self.stacks,
+            &self.stats,
+            &self.pixels,
+            &self.paths,
+        ];
+        all.extend([&self.albedos, &self.readback, &self.fault_readback]);
+        all.extend([&self.waiter_readback, &self.pixel_readback]);
+        all.extend(self.live.iter().chain(&self.counters));
+        all.iter().map(|b| b.size()).sum()
+    }
+
     /// The batch buffer bound to WGSL variable `name` (group 1 of the kernels).
     pub fn resource(&self, name: &str, lists: Lists) -> Option<&wgpu::Buffer> {
         let (i, o) = (lists.input, lists.output());

@@ -942,6 +942,12 @@ impl<'g> Tracer<'g> {
         self.fit_pixels.is_some()
     }
 
+    /// Bytes of every lane's batch buffers (`Batch::bytes`).
+    pub fn batch_bytes(&self) -> u64 {
+        let spares = self.spares.iter().map(|l| l.batch.bytes());
+        self.batch.bytes() + spares.sum::<u64>()
+    }
+
     /// The rays each lane holds: the current one, then the spares (`spare_lanes`).
     pub fn lane_rays(&self) -> Vec<u32> {
         let spares = self.spares.iter().map(|l| l.batch.rays_cap);

@@ -35,6 +35,9 @@ struct DcRow {
     nodes_per_block_entry: f64,
     resident_mib: f64,
     cache_mib: f64,
+    /// The batch buffers of the tracer's lanes after the last frame (`Tracer::batch_bytes`): the
+    /// rays, stacks and pixels in flight, beside the blocks and the cache.
+    lanes_mib: f64,
     /// Of the warm frames' time: GPU trace rounds (timestamps), submission and readback waits,
     /// CPU fetch, upload, shading.
     gpu_share: f64,
@@ -172,6 +175,7 @@ pub fn run(
                 / sum(&|s| s.block_entries as f64).max(1.0),
             resident_mib: mib(resident),
             cache_mib: mib(cache),
+            lanes_mib: mib(tracer.batch_bytes()),
             gpu_share: sum(&|s| s.gpu_seconds) / secs,
             sync_share: sum(&|s| {
                 s.trace_seconds - s.gpu_seconds - s.fetch_seconds - s.upload_seconds
@@ -267,6 +271,7 @@ fn print(report: &DcReport) {
         ("nod/blk", 7),
         ("res MiB", 8),
         ("$ MiB", 7),
+        ("lanes MiB", 9),
         ("gpu%", 6),
         ("sync%", 6),
         ("fetch%", 6),
@@ -296,6 +301,7 @@ fn print(report: &DcReport) {
             format!("{:.2}", r.nodes_per_block_entry),
             format!("{:.1}", r.resident_mib),
             format!("{:.1}", r.cache_mib),
+            format!("{:.1}", r.lanes_mib),
             format!("{:.0}", r.gpu_share * 100.0),
             format!("{:.0}", r.sync_share * 100.0),
             format!("{:.1}", r.fetch_share * 100.0),
