@@ -266,7 +266,14 @@ impl Tracer<'_> {
             }
             let start = free.filter(|_| tails);
             if let Some((l, mut run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
-                let n = self.batch_tiles(&run, self.lane(l).0.rays_cap);
+                let lane_rays = self.lane(l).0.rays_cap;
+                let n = self.batch_tiles(&run, lane_rays);
+                // A batch past its lane's buffers would lose rays silently: refuse it.
+                if u64::from(n) * u64::from(TILE_RAYS) > u64::from(lane_rays) {
+                    return Err(Error::Gpu(format!(
+                        "a batch of {n} tiles does not fit lane {l} of {lane_rays} rays"
+                    )));
+                }
                 if n < run.tiles {
                     let mut rest =
                         LaneRun::new(run.rect, run.tiling, run.slot, run.first + n, run.tiles - n);

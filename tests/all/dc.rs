@@ -323,8 +323,9 @@ fn spare_lanes_sized_to_the_batches_trace_the_same_image() {
     // With the default batch size and a 1/32 cache, batches are fitted far below a lane's size:
     // the spare lanes are made that small (smaller than the frame), as many as fit in the memory
     // of two full lanes, and batches run in them, overlapping; the image stays the replicated one
-    // in every frame. (That a batch takes no more tiles than its lane holds is `batch_tiles`'s
-    // `most`, tested in gpu::rounds.)
+    // in every frame. From the fourth frame on batches are sized by the last frame's faults: one
+    // over the right half, which sees nothing, would take all its 320 tiles but takes no more
+    // than the 256 its spare lane holds (a batch past its lane is refused with an error).
     let gpu = gpu();
     let (w, h) = (256, 160);
     let (p, camera) = rm_on_the_left(w, h);
@@ -339,7 +340,7 @@ fn spare_lanes_sized_to_the_batches_trace_the_same_image() {
     };
     let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
     let mut shared = 0;
-    for f in 0..3 {
+    for f in 0..4 {
         let (frame, stats) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
         same_pixels(&reference, &frame, &format!("frame {f}"));
         // The first frame, before its blocks are counted, is one batch.
