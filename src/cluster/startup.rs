@@ -182,6 +182,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     report[FINGERPRINT].copy_from_slice(&[fingerprint as u32, (fingerprint >> 32) as u32]);
     report[CAMERA] = digest(&loaded.camera);
     report[MESHES] = digest(&(&loaded.meshes, loaded.depth, loaded.triangles));
+    let basis = loaded.camera.basis(image.width, image.height);
     Ok(Opened {
         image,
         report,
@@ -193,7 +194,8 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             settings: Settings {
                 shading,
                 ..opts.settings
-            },
+            }
+            .for_image(image.width, image.height, &basis),
         })),
     })
 }

@@ -419,7 +419,7 @@ impl Tracer<'_> {
     }
 
     /// The tiles the next batch of `run`'s rectangle takes. With a short cache and last frame's
-    /// fault density of the rectangle, as many as are expected to fault `FILL_SHARE` times the
+    /// fault density of the rectangle, as many as are expected to fault `fill_share` times the
     /// cache's lines (`FaultDensity::batch`), so that a batch over a dense part of the image is
     /// smaller than one over a sparse part; otherwise the rectangle's even share
     /// (`RectPlan::per_batch`). Never more than the `lane_rays` of the lane it starts in.
@@ -432,7 +432,7 @@ impl Tracer<'_> {
         if d.rect != run.rect || !self.fits_by_batches() {
             return even;
         }
-        let target = f64::from(dc.policy.lines()) * FILL_SHARE;
+        let target = f64::from(dc.policy.lines()) * fill_share(self.spares.len());
         let most = run.tiles.min(lane_tiles);
         let least = MIN_FIT_PIXELS / TILE_RAYS;
         d.batch(run.tiling, run.first, least..=most, target)
@@ -786,12 +786,23 @@ impl LaneRun {
     }
 }
 
-/// How many times the cache's lines a batch is sized to fault on (`Tracer::batch_tiles`): lines
-/// are reused within a batch's rounds as its rays finish, so its faults may exceed them. rm 3M at
-/// 1024x1024, rank 0 of 8, nodes replicated, 1/32, 8-frame orbits: 1.0 took 39.5 fault rounds a
-/// warm frame and fetched 10,722 blocks, 1.2 38.3 and 11,178, 1.5 40.2 and 11,854 (README,
-/// Benchmarks).
-const FILL_SHARE: f64 = 1.2;
+/// How many times the cache's lines a batch is sized to fault on (`Tracer::batch_tiles`), with
+/// `spares` spare lanes. A batch lists most of its blocks in its first round and then holds its
+/// lane for several rounds while its last rays climb chains of blocks.
+/// - With few lanes, tails fill them and a batch can start only every second round or so, so
+///   batches are larger than the cache (lines are reused as their rays finish).
+/// - With `MANY_SPARES` or more, a batch can start every round, and one whose first round fits
+///   the lines beside the rounds of those before it gets all its blocks at once.
+///
+/// rm 3M at 1024x1024, rank 0 of 8, 8-frame orbits, mean fault rounds of frames 2-7, two runs
+/// each (README, Benchmarks): at 1/32 with 6 spares, 1.2 took 35.3-35.7 and 0.85 33.5-33.8 with
+/// the nodes replicated; at 1/8 with 2 spares, 1.2 took 11.2-11.3 and 0.85 12.3-12.5.
+fn fill_share(spares: usize) -> f64 {
+    if spares >= MANY_SPARES { 0.85 } else { 1.2 }
+}
+
+/// Spare lanes from which a batch is sized to start every round (`fill_share`).
+const MANY_SPARES: usize = 4;
 
 /// Where a rectangle's blocks are dense: per 8x8 tile (by position, whatever the batch order),
 /// how many of the blocks its batch faulted on in the last frame a ray of the tile listed first.

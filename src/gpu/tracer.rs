@@ -71,6 +71,21 @@ pub struct Settings {
     pub shading: Shading,
 }
 
+impl Settings {
+    /// These settings with batches of at most the rays a `width`x`height` frame has at once (a
+    /// ray per pixel, or a wave's fan of secondary rays per pixel, for `basis`'s lights): a
+    /// lane's memory follows its batch, and the default batch is far larger than a small image.
+    pub fn for_image(self, width: u32, height: u32, basis: &CameraBasis) -> Settings {
+        let tiles = u64::from(width.div_ceil(TILE)) * u64::from(height.div_ceil(TILE));
+        let fan = u64::from(self.shading.fan(basis).max(1));
+        let rays = (tiles * u64::from(TILE_RAYS) * fan).min(u64::from(self.max_batch_rays));
+        Settings {
+            max_batch_rays: rays as u32,
+            ..self
+        }
+    }
+}
+
 impl Default for Settings {
     fn default() -> Self {
         Settings {
@@ -211,12 +226,14 @@ pub(super) struct Lane {
 const SPARE_LANES: usize = 2;
 
 /// At most this many spare lanes sized to the cache's batches (`spare_lanes`).
-const MAX_FITTED_SPARES: usize = 4;
+const MAX_FITTED_SPARES: usize = 8;
 
 /// A spare lane sized to the cache's batches holds this many times the fitted batch's pixels
 /// (`Tracer::fit_pixels`): a batch over a sparse part of the image takes more than its even share
-/// (`rounds::FaultDensity`).
-const SPARE_FIT_SHARE: u32 = 4;
+/// (`rounds::FaultDensity`), up to the lane's size. Two rather than four: twice the lanes in the
+/// same memory let a batch start every round (`rounds::fill_share`; rm 3M at 1/32, rank 0 of 8:
+/// 33.5-33.8 fault rounds a warm frame against 35.3-35.7 with four).
+const SPARE_FIT_SHARE: u32 = 2;
 
 /// The rays a spare lane holds and how many spare lanes there are, for a current lane of
 /// `rays_cap` rays and batches fitted to `fit_pixels`. Without a fit (the cache holds every
@@ -1153,16 +1170,50 @@ mod tests {
     fn spare_lanes_fit_the_batches_in_the_memory_of_two_full_ones() {
         // No fit (the cache holds every block): two lanes as large as the current one.
         assert_eq!(spare_lanes(364_672, None), (364_672, SPARE_LANES));
-        // rm 3M at 1/32: four fitted batches a lane, whole tiles, three lanes.
+        // rm 3M at 1/32: two fitted batches a lane, whole tiles, six lanes.
         let (rays, count) = spare_lanes(364_672, Some(57_878));
-        assert_eq!((rays, count), (231_552, 3));
+        assert_eq!((rays, count), (115_776, 6));
         assert_eq!(rays % TILE_RAYS, 0);
-        assert!(rays >= 4 * 57_878 && count as u64 * u64::from(rays) <= 2 * 364_672);
-        // Tiny batches: at most four lanes; batches near the lane's size: two full lanes.
+        assert!(rays >= 2 * 57_878 && count as u64 * u64::from(rays) <= 2 * 364_672);
+        // Tiny batches: at most eight lanes; batches near the lane's size: two full lanes.
         assert_eq!(
             spare_lanes(364_672, Some(100)),
-            (4 * MIN_FIT_PIXELS, MAX_FITTED_SPARES)
+            (2 * MIN_FIT_PIXELS, MAX_FITTED_SPARES)
         );
         assert_eq!(spare_lanes(364_672, Some(231_406)), (364_672, SPARE_LANES));
+    }
+
+    #[test]
+    fn a_batch_holds_at_most_the_rays_of_its_image() {
+        let basis = |w, h| CameraBasis {
+            origin: [0.0, 0.0, 5.0],
+            forward: [0.0, 0.0, -1.0],
+            right: [1.0, 0.0, 0.0],
+            up: [0.0, 1.0, 0.0],
+            width: w,
+            height: h,
+            parallel: false,
+        };
+        let cast = Settings::default();
+        // A ray a pixel, in whole tiles: 65x64 pixels are 9x8 tiles.
+        assert_eq!(cast.for_image(64, 64, &basis(64, 64)).max_batch_rays, 4096);
+        assert_eq!(
+            cast.for_image(65, 64, &basis(65, 64)).max_batch_rays,
+            72 * TILE_RAYS
+        );
+        // A wave of ambient occlusion puts `ao_rays` secondary rays a pixel in the batch.
+        let mut ao = cast;
+        ao.shading.mode = crate::shading::Mode::Ao;
+        let fan = ao.shading.ao_rays;
+        assert_eq!(
+            ao.for_image(64, 64, &basis(64, 64)).max_batch_rays,
+            4096 * fan
+        );
+        // Never more than the settings allow.
+        assert_eq!(
+            cast.for_image(4096, 4096, &basis(4096, 4096))
+                .max_batch_rays,
+            cast.max_batch_rays
+        );
     }
 }

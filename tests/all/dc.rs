@@ -325,7 +325,7 @@ fn spare_lanes_sized_to_the_batches_trace_the_same_image() {
     // of two full lanes, and batches run in them, overlapping; the image stays the replicated one
     // in every frame. From the fourth frame on batches are sized by the last frame's faults: one
     // over the right half, which sees nothing, would take all its 320 tiles but takes no more
-    // than the 256 its spare lane holds (a batch past its lane is refused with an error).
+    // than the 128 its spare lane holds (a batch past its lane is refused with an error).
     let gpu = gpu();
     let (w, h) = (256, 160);
     let (p, camera) = rm_on_the_left(w, h);

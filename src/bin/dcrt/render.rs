@@ -101,7 +101,8 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let s = Settings {
         shading,
         ..settings(&a.gpu)
-    };
+    }
+    .for_image(width, height, &loaded.camera.basis(width, height));
     let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
     match &dc {
         Some(o) => {
