@@ -147,6 +147,21 @@ fn near_first(a: ptr<function, vec4<u32>>, b: ptr<function, vec4<u32>>) {
     *b = select(y, x, swap);
 }
 
+// Stack entries held in registers (main's `top`): four, as pack_entry makes them, top first. A
+// struct of separate members, not an array: a CPU driver indexes a private array with a gather.
+const TOP: u32 = 4u;
+struct Top {
+    e0: vec2<u32>,
+    e1: vec2<u32>,
+    e2: vec2<u32>,
+    e3: vec2<u32>,
+}
+
+// Held entry i (0 the top).
+fn top_at(t: Top, i: u32) -> vec2<u32> {
+    return select(select(t.e3, t.e2, i == 2u), select(t.e1, t.e0, i == 0u), i < 2u);
+}
+
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     var again = false;
@@ -220,9 +235,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var tri_row = NONE;
         var pending_slot = 0u;
         var pending_index = 0u;
+        // The top of the stack in registers: top[0] the top entry, `held` of them in use, the
+        // rest in `stacks` below r.sp. A CPU driver runs a buffer access as a loop over the lanes
+        // that stalls on every lane taking it; a push or pop here costs a few selects, and the
+        // buffer is reached only by a ray whose stack is deeper than TOP.
+        var top = Top(vec2(0u), vec2(0u), vec2(0u), vec2(0u));
+        var held = 0u;
         loop {
             loop {
-                if cur.y == NONE && r.sp == 0u {
+                if cur.y == NONE && r.sp == 0u && held == 0u {
                     if deferred(r) == 0u {
                         r.status = DONE;
                     } else {
@@ -235,8 +256,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
                 iters += 1u;
                 if cur.y == NONE {
-                    r.sp -= 1u;
-                    let e = unpack_entry(stacks[base + r.sp]);
+                    var p = top.e0;
+                    if held == 0u {
+                        r.sp -= 1u;
+                        p = stacks[base + r.sp];
+                    } else {
+                        top = Top(top.e1, top.e2, top.e3, top.e3);
+                        held -= 1u;
+                    }
+                    let e = unpack_entry(p);
                     // Entries farther than the closest hit found since they were pushed are culled.
                     if !(bitcast<f32>(e.z) <= reach(r.t)) {
                         continue;
@@ -295,22 +323,29 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     near_first(&e1, &e2);
                     // The nearest is visited next, the others pushed farthest first.
                     let pushes = u32(e1.z != MISS) + u32(e2.z != MISS) + u32(e3.z != MISS);
-                    if r.sp + pushes > cap {
+                    if r.sp + held + pushes > cap {
                         r.status = OVERFLOW;
                         break;
                     }
-                    if e3.z != MISS {
-                        stacks[base + r.sp] = pack_entry(e3);
+                    // Room for the pushes: the deepest held entries go to the buffer.
+                    let spill = held + pushes - min(held + pushes, TOP);
+                    for (var j = 0u; j < spill; j++) {
+                        stacks[base + r.sp] = top_at(top, held - 1u);
                         r.sp += 1u;
+                        held -= 1u;
                     }
-                    if e2.z != MISS {
-                        stacks[base + r.sp] = pack_entry(e2);
-                        r.sp += 1u;
+                    // e1 on top, then e2 and e3 (sorted, so the pushed ones come first).
+                    let p1 = pack_entry(e1);
+                    let p2 = pack_entry(e2);
+                    let p3 = pack_entry(e3);
+                    if pushes == 1u {
+                        top = Top(p1, top.e0, top.e1, top.e2);
+                    } else if pushes == 2u {
+                        top = Top(p1, p2, top.e0, top.e1);
+                    } else if pushes == 3u {
+                        top = Top(p1, p2, p3, top.e0);
                     }
-                    if e1.z != MISS {
-                        stacks[base + r.sp] = pack_entry(e1);
-                        r.sp += 1u;
-                    }
+                    held += pushes;
                     cur = select(vec2(0u, NONE), e0.xy, e0.z != MISS);
                     cur_t = e0.z;
                 } else {
@@ -338,6 +373,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     }
                     if th.t > 0.0 && take_hit(&r, &closest, th, index, row, tl.y) {
                         cur.y = NONE;
+                        held = 0u;
                         break;
                     }
                 }
@@ -387,8 +423,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             let th = resolve_hit(tri_at(pending_row, pending_slot), org, sh, r.t, camera);
             if th.t > 0.0 && take_hit(&r, &closest, th, pending_index, pending_row, pending_slot) {
                 cur.y = NONE;
+                held = 0u;
                 break;
             }
+        }
+        // The held entries back into the buffer, deepest first: the stack a resumed ray reads.
+        for (var j = 0u; j < held; j++) {
+            stacks[base + r.sp] = top_at(top, held - 1u - j);
+            r.sp += 1u;
         }
         // The round's faults, requested here rather than in the loop: the blocks of the entries
         // set aside in this round and the one the ray suspended at, as a lookup inside the loop
