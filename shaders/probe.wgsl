@@ -70,11 +70,11 @@ fn main() {
         putf(r.ox); putf(r.oy); putf(r.oz); putf(r.t);
         putf(r.dx); putf(r.dy); putf(r.dz); put(r.hit);
         put(r.sp); put(r.status); put(r.steps);
-        put(r.cur_index); put(r.cur_count); put(r.prim);
+        put(r.cur_index); put(r.cur_count);
+        put(r.wait_block); put(r.flags); put(r.skip); put(r.prim);
         putf(r.nx); putf(r.ny); putf(r.nz);
-        put(r.wait_block); put(r.flags);
         putf(r.hx); putf(r.hy); putf(r.hz); putf(r.herr);
-        putf(r.b1); putf(r.b2); put(r.skip); put(r.pad0); put(r.pad1);
+        putf(r.b1); putf(r.b2); put(r.pad0); put(r.pad1);
     }
     for (var i = 0u; i < p.mesh_count; i++) {
         let m = meshes[i];

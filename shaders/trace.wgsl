@@ -174,7 +174,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // A ray whose block has not arrived only renews its request: no state is read or
         // written, which makes a round with many waiting rays cheap.
         if DC {
-            let wb = rays[ray_index].g[4].y;
+            let wb = rays[ray_index].g[3].y;
             if wb != NONE && block_rows[wb] == NONE {
                 request(wb, requester(ray_index));
                 parked = true;
@@ -183,7 +183,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
     }
     if gid.x < counter_in[0] && !parked {
-        var r = ray_state(rays[ray_index]);
+        // The four groups traversal reads: those of the closest hit are written whole when one
+        // is found (a CPU driver loads a buffer's words lane by lane, stalling on each).
+        let z = vec4(0u);
+        var r = ray_state(RayGroups(array(rays[ray_index].g[0], rays[ray_index].g[1],
+                                          rays[ray_index].g[2], rays[ray_index].g[3], z, z, z)));
         r.wait_block = NONE;
         // A ray with NaN, infinite or zero inputs ends at once as a miss, whoever made it.
         let valid = ray_valid(r);
@@ -480,8 +484,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         rays[ray_index].g[1].w = w.g[1].w;
         rays[ray_index].g[2] = w.g[2];
         rays[ray_index].g[3] = w.g[3];
-        rays[ray_index].g[4] = w.g[4];
         if closest.found {
+            rays[ray_index].g[4] = w.g[4];
             rays[ray_index].g[5] = w.g[5];
             rays[ray_index].g[6] = w.g[6];
         }

@@ -24,23 +24,24 @@ struct RayState {
     // 0, else `cur_count` triangles from `cur_index`; `cur_count` NONE to pop the stack.
     cur_index: u32,
     cur_count: u32,
-    // Recorded when the closest hit is found, while its block is at hand: shading then needs no
-    // block.
-    prim: u32,
-    nx: f32, ny: f32, nz: f32,
     // The block this ray suspended on, or NONE: until it arrives the ray only renews its request.
     wait_block: u32,
     flags: u32,   // ANY_HIT, FROM_CAMERA
+    // The triangle (BVH order) a secondary ray leaves, which it cannot hit again (a ray meets a
+    // plane once), or NONE: skipping it saves proving, in extended precision, that its hit lies
+    // behind the origin.
+    skip: u32,
+    // Recorded when the closest hit is found, while its block is at hand: shading then needs no
+    // block. Traversal reads none of what follows (the first four groups of RayGroups hold the
+    // rest) and writes it only with a closer hit.
+    prim: u32,
+    nx: f32, ny: f32, nz: f32,
     // The closest hit's point, from its barycentrics, and how far along the normal a new ray's
     // origin must move to be past its rounding error (hit_point_error, offset_distance).
     hx: f32, hy: f32, hz: f32,
     herr: f32,
     // The closest hit's barycentrics of v1 and v2: point data is interpolated with them.
     b1: f32, b2: f32,
-    // The triangle (BVH order) a secondary ray leaves, which it cannot hit again (a ray meets a
-    // plane once), or NONE: skipping it saves proving, in extended precision, that its hit lies
-    // behind the origin.
-    skip: u32,
     pad0: u32,
     pad1: u32,
 }
@@ -63,11 +64,10 @@ fn ray_state(w: RayGroups) -> RayState {
     let g = w.g[6];
     let af = bitcast<vec4<f32>>(a);
     let bf = bitcast<vec4<f32>>(b);
-    let df = bitcast<vec4<f32>>(d);
     let ef = bitcast<vec4<f32>>(e);
+    let gf = bitcast<vec4<f32>>(g);
     return RayState(af.x, af.y, af.z, af.w, bf.x, bf.y, bf.z, b.w, c.x, c.y, c.z, c.w, d.x, d.y,
-                    df.z, df.w, ef.x, e.y, e.z, ef.w, f.x, f.y, f.z, f.w, bitcast<f32>(g.x), g.y,
-                    g.z, g.w);
+                    d.z, d.w, e.x, ef.y, ef.z, ef.w, f.x, f.y, f.z, f.w, gf.x, gf.y, g.z, g.w);
 }
 
 fn ray_groups(r: RayState) -> RayGroups {
@@ -75,10 +75,10 @@ fn ray_groups(r: RayState) -> RayGroups {
         bitcast<vec4<u32>>(vec4(r.ox, r.oy, r.oz, r.t)),
         vec4(bitcast<vec3<u32>>(vec3(r.dx, r.dy, r.dz)), r.hit),
         vec4(r.sp, r.status, r.steps, r.cur_index),
-        vec4(r.cur_count, r.prim, bitcast<u32>(r.nx), bitcast<u32>(r.ny)),
-        vec4(bitcast<u32>(r.nz), r.wait_block, r.flags, bitcast<u32>(r.hx)),
-        bitcast<vec4<u32>>(vec4(r.hy, r.hz, r.herr, r.b1)),
-        vec4(bitcast<u32>(r.b2), r.skip, r.pad0, r.pad1)));
+        vec4(r.cur_count, r.wait_block, r.flags, r.skip),
+        vec4(r.prim, bitcast<vec3<u32>>(vec3(r.nx, r.ny, r.nz))),
+        bitcast<vec4<u32>>(vec4(r.hx, r.hy, r.hz, r.herr)),
+        vec4(bitcast<vec2<u32>>(vec2(r.b1, r.b2)), r.pad0, r.pad1)));
 }
 
 // RayState.flags: stop at the first hit found (shadow and ambient-occlusion rays).
@@ -91,7 +91,7 @@ const FROM_CAMERA: u32 = 2u;
 fn new_ray(o: vec3<f32>, d: vec3<f32>, tmax: f32, status: u32, flags: u32, skip: u32)
     -> RayState {
     return RayState(o.x, o.y, o.z, tmax, d.x, d.y, d.z, NONE, 0u, status, 0u, 0u, 0u, NONE,
-                    0.0, 0.0, 0.0, NONE, flags, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, skip, 0u, 0u);
+                    flags, skip, NONE, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0u, 0u);
 }
 
 fn ray_origin(r: RayState) -> vec3<f32> {

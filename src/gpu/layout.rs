@@ -97,13 +97,16 @@ pub struct RayState {
     /// triangles from `cur_index`; `cur_count` `NONE` to pop the stack (a new ray: 0 and 0).
     pub cur_index: u32,
     pub cur_count: u32,
-    /// Primitive id and unit geometric normal of the closest hit.
-    pub prim: u32,
-    pub normal: [f32; 3],
     /// The block the ray suspended on, or `NONE`.
     pub wait_block: u32,
     /// `flags::ANY_HIT` for shadow and occlusion rays, `flags::FROM_CAMERA` for primary rays.
     pub flags: u32,
+    /// The triangle (BVH order) a secondary ray leaves and skips, or `NONE`.
+    pub skip: u32,
+    /// Primitive id and unit geometric normal of the closest hit. This and what follows is only
+    /// written by traversal (when it finds a closer hit): the first 64 bytes are all it reads.
+    pub prim: u32,
+    pub normal: [f32; 3],
     /// The closest hit's point from its barycentrics, and the distance along the normal that
     /// moves a new ray's origin past its rounding error.
     pub hit_point: [f32; 3],
@@ -111,8 +114,6 @@ pub struct RayState {
     /// The closest hit's barycentrics of v1 and v2 (point data is interpolated with them).
     pub b1: f32,
     pub b2: f32,
-    /// The triangle (BVH order) a secondary ray leaves and skips, or `NONE`.
-    pub skip: u32,
     pub pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<RayState>() == 112);
