@@ -30,6 +30,7 @@ struct MirrorResult {
     hi: vec4<f32>,
     color: vec4<f32>,    // colormap(c.x, c.y, c.z, words.z % 4)
     rgb: vec4<f32>,      // srgb_color(words.x)
+    row: vec4<u32>,      // block_row(invocation) in x
 }
 
 @group(1) @binding(0) var<storage, read> mirror_in: array<MirrorCase>;
@@ -55,5 +56,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     r.hi = vec4(b.hi, 0.0);
     r.color = vec4(colormap(c.c.x, c.c.y, c.c.z, c.words.z % 4u), 0.0);
     r.rgb = vec4(srgb_color(c.words.x), 0.0);
+    r.row = vec4(block_row(i), 0u, 0u, 0u);
     mirror_out[i] = r;
 }

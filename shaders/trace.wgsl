@@ -175,7 +175,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // written, which makes a round with many waiting rays cheap.
         if DC {
             let wb = rays[ray_index].g[3].y;
-            if wb != NONE && block_rows[wb] == NONE {
+            if wb != NONE && block_row(wb) == NONE {
                 request(wb, requester(ray_index));
                 parked = true;
                 again = true;
@@ -391,7 +391,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let nd = deferred(r);
                 var here = false;
                 for (var i = 0u; i < nd; i++) {
-                    here = here || block_rows[entry_block(unpack_entry(stacks[slots + i]))] != NONE;
+                    here = here || block_row(entry_block(unpack_entry(stacks[slots + i]))) != NONE;
                 }
                 if !here {
                     r.wait_block = entry_block(unpack_entry(stacks[slots]));

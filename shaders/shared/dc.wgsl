@@ -16,8 +16,15 @@ struct Faults {
     blocks: array<u32>,
 }
 // The row of every block on this GPU (resident or cached), NONE when absent: one load replaces
-// the ownership and tag arithmetic. The host updates it between rounds.
-@group(0) @binding(3) var<storage, read> block_rows: array<u32>;
+// the ownership and tag arithmetic. The host updates it between rounds. A texture of
+// ROW_TABLE_WIDTH blocks a texel row (gpu::row_table), not a buffer: a CPU driver fetches texels
+// through a gather, and runs a buffer load as a loop over the lanes that stalls in each.
+@group(0) @binding(3) var block_rows: texture_2d_array<u32>;
+override ROW_TABLE_WIDTH: u32 = 4096u;  // the host's gpu::row_table::WIDTH
+
+fn block_row(k: u32) -> u32 {
+    return textureLoad(block_rows, vec2(k % ROW_TABLE_WIDTH, k / ROW_TABLE_WIDTH), 0, 0).x;
+}
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
@@ -59,7 +66,7 @@ fn lookup(k: u32) -> u32 {
     if !DC {
         return k;
     }
-    let row = block_rows[k];
+    let row = block_row(k);
     if row < params.dc_cache_row {
         return row;  // owned, or the replicated root
     }

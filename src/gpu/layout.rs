@@ -320,4 +320,6 @@ pub struct MirrorResult {
     /// `colormap` and `srgb_color` of the case.
     pub color: [f32; 4],
     pub rgb: [f32; 4],
+    /// `block_row` of the case's index (x) in the table `run_mirror` was given.
+    pub row: [u32; 4],
 }

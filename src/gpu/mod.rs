@@ -8,6 +8,7 @@ mod kernels;
 pub mod layout;
 pub mod probe;
 mod rounds;
+pub mod row_table;
 pub mod shaders;
 mod store;
 pub mod tracer;

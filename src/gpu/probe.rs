@@ -69,15 +69,21 @@ impl Tracer<'_> {
 
 /// Runs the mirror kernel (tests): each case through the shared WGSL functions that have CPU
 /// twins in `mirror` (and `dc::cache_line`), with `params` as the uniform (its `seed`,
-/// `first_tile`, `tiles_x` and `dc_*` matter).
+/// `first_tile`, `tiles_x` and `dc_*` matter), and `rows` as the block-row table (`block_row`
+/// of case i reads entry i; empty: a placeholder).
 pub fn run_mirror(
     gpu: &super::Gpu,
     params: &Params,
     cases: &[MirrorCase],
+    rows: &[u32],
 ) -> Result<Vec<MirrorResult>> {
     use wgpu::BufferUsages as U;
-    let kernel =
-        super::kernels::Kernel::new(gpu, "mirror", super::shaders::Store::Texture.module(), &[]);
+    let kernel = super::kernels::Kernel::new(
+        gpu,
+        "mirror",
+        super::shaders::Store::Texture.module(),
+        &[("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH))],
+    );
     let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
     let params_buf = init("params", bytemuck::bytes_of(params), U::UNIFORM);
     let input = init("mirror in", bytemuck::cast_slice(cases), U::STORAGE);
@@ -85,7 +91,12 @@ pub fn run_mirror(
     let out = gpu.buffer("mirror out", bytes, U::STORAGE | U::COPY_SRC);
     // The cache's tables, one buffer each (a binding may not share a writable buffer):
     // `cache_line` reads only `params`.
-    let unused: Vec<wgpu::Buffer> = (0..5)
+    let rows = if rows.is_empty() {
+        super::row_table::RowTable::placeholder(gpu)
+    } else {
+        super::row_table::RowTable::new(gpu, rows)?
+    };
+    let unused: Vec<wgpu::Buffer> = (0..4)
         .map(|_| gpu.buffer("unused", 32, U::STORAGE))
         .collect();
     let palette = init(
@@ -97,11 +108,11 @@ pub fn run_mirror(
         "params" => Some(params_buf.as_entire_binding()),
         "mirror_in" => Some(input.as_entire_binding()),
         "mirror_out" => Some(out.as_entire_binding()),
-        "block_rows" => Some(unused[0].as_entire_binding()),
-        "faults" => Some(unused[1].as_entire_binding()),
-        "requested" => Some(unused[2].as_entire_binding()),
-        "waiters" => Some(unused[3].as_entire_binding()),
-        "line_used" => Some(unused[4].as_entire_binding()),
+        "block_rows" => Some(rows.binding()),
+        "faults" => Some(unused[0].as_entire_binding()),
+        "requested" => Some(unused[1].as_entire_binding()),
+        "waiters" => Some(unused[2].as_entire_binding()),
+        "line_used" => Some(unused[3].as_entire_binding()),
         "palette" => Some(palette.as_entire_binding()),
         _ => None,
     });

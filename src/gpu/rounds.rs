@@ -615,11 +615,7 @@ impl Tracer<'_> {
             self.store.write_row(self.gpu, self.format, load.row, words);
         }
         for &(block, row) in &plan.rows {
-            let at = u64::from(block) * 4;
-            let rows = &self.dc_bufs.rows;
-            self.gpu
-                .queue
-                .write_buffer(rows, at, bytemuck::bytes_of(&row));
+            self.dc_bufs.rows.set(self.gpu, block, row);
         }
         let upload = t.elapsed().as_secs_f64();
         let loaded = plan.loads.len() as u32;

@@ -186,7 +186,7 @@ pub(super) struct Dc {
 
 /// The distributed cache's GPU buffers (small placeholders, never read, when replicated).
 pub(super) struct DcBuffers {
-    pub rows: wgpu::Buffer,
+    pub rows: super::row_table::RowTable,
     pub faults: wgpu::Buffer,
     pub requested: wgpu::Buffer,
     pub waiters: wgpu::Buffer,
@@ -437,6 +437,7 @@ impl<'g> Tracer<'g> {
         constants.extend(store.constants());
         let slots = if dc.is_some() { DEFER_SLOTS } else { 0 };
         constants.push(("DEFER_SLOTS", f64::from(slots)));
+        constants.push(("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH)));
         let colored = attrs.words > 0;
         let mode = settings.shading.mode;
         let kernels = Kernels::new(gpu, store.module(), &constants, mode, colored);
@@ -467,7 +468,7 @@ impl<'g> Tracer<'g> {
                 // A replicated model binds small placeholders the kernels never read.
                 let p = || gpu.buffer("unused", 32, U::STORAGE);
                 let bufs = DcBuffers {
-                    rows: p(),
+                    rows: super::row_table::RowTable::placeholder(gpu),
                     faults: p(),
                     requested: p(),
                     waiters: p(),
@@ -500,11 +501,7 @@ impl<'g> Tracer<'g> {
                 let fits = d.lines >= blocks - resident;
                 params.dc_defer = defer_slots(settings, fits);
                 let bufs = DcBuffers {
-                    rows: init(
-                        "block rows",
-                        bytemuck::cast_slice(policy.block_rows()),
-                        U::STORAGE | U::COPY_DST,
-                    ),
+                    rows: super::row_table::RowTable::new(gpu, policy.block_rows())?,
                     faults: gpu.buffer(
                         "faults",
                         fault_bytes(FAULT_CAP),
@@ -646,11 +643,11 @@ impl<'g> Tracer<'g> {
         }
         let buf = match name {
             "blocks" | "blocks_1" | "blocks_2" | "blocks_3" => return self.store.resource(name),
+            "block_rows" => return Some(self.dc_bufs.rows.binding()),
             "params" => &self.params_buf,
             "meshes" => &self.meshes_buf,
             "palette" => &self.palette_buf,
             "shading" => &self.shade_buf,
-            "block_rows" => &self.dc_bufs.rows,
             "faults" => &self.dc_bufs.faults,
             "requested" => &self.dc_bufs.requested,
             "waiters" => &self.dc_bufs.waiters,

@@ -105,7 +105,7 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
             flags: flag | flags::JITTER,
             ..params()
         };
-        let out = run_mirror(&gpu, &p, &cases).unwrap();
+        let out = run_mirror(&gpu, &p, &cases, &[]).unwrap();
         assert_eq!(out.len(), cases.len());
         for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
             assert_eq!(r.words[0], hash(c.words[0]), "hash, case {i}");
@@ -143,7 +143,7 @@ fn cache_line_matches_the_gpu_for_both_mappings() {
                 dc_map: code,
                 ..params()
             };
-            let out = run_mirror(&gpu, &p, &cases).unwrap();
+            let out = run_mirror(&gpu, &p, &cases, &[]).unwrap();
             let ranks = Ranks::new(n, rank).unwrap();
             for (c, r) in cases.iter().zip(&out) {
                 // Blocks the rank owns never reach the cache; the formula is checked for all.
@@ -164,7 +164,7 @@ fn offset_ray_matches_the_gpu_bit_for_bit() {
     // them), then a step of one float: exact in IEEE f32 on both sides.
     let gpu = gpu();
     let cases = cases(4096);
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
         let (p, d) = ([c.p[0], c.p[1], c.p[2]], c.p[3]);
         let n = [c.n[0], c.n[1], c.n[2]];
@@ -218,7 +218,7 @@ fn child_box_matches_the_gpu_and_contains_the_box() {
             exact.push((node, s, *b));
         }
     }
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     for ((node, s, (lo, hi)), r) in exact.iter().zip(&out) {
         let (clo, chi) = node.child_box(*s);
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
@@ -245,7 +245,7 @@ fn child_box_matches_the_gpu_and_contains_the_box() {
 fn cosine_dir_matches_the_gpu_within_float_precision() {
     let gpu = gpu();
     let cases = cases(4096);
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     let mut worst = 0.0f32;
     for (c, r) in cases.iter().zip(&out) {
         let cpu = cosine_dir([c.n[0], c.n[1], c.n[2]], [c.u[0], c.u[1]]);
@@ -265,7 +265,7 @@ fn cosine_dir_on_the_gpu_has_the_cosine_moments() {
     // are about 0.004; 0.02 is five of them.
     let gpu = gpu();
     let cases = cases(4096);
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     let cos: Vec<f64> = cases
         .iter()
         .zip(&out)
@@ -311,7 +311,7 @@ fn colormap_matches_the_gpu_bit_for_bit() {
         };
         c.c = [s, lo, scale, 0.0];
     }
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     let mut bins = std::collections::BTreeSet::new();
     for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
         let [s, lo, scale, _] = c.c;
@@ -364,7 +364,7 @@ fn dot_difference_on_the_gpu_is_within_its_bound_of_the_exact_value() {
             ..MirrorCase::default()
         });
     }
-    let out = run_mirror(&gpu, &params(), &cases).unwrap();
+    let out = run_mirror(&gpu, &params(), &cases, &[]).unwrap();
     let (mut bad, mut plain_bad) = (0, 0);
     for (i, (c, r)) in cases.iter().zip(&out).enumerate() {
         let exact: f64 = (0..3)
@@ -407,4 +407,19 @@ fn cross3(a: [f32; 3], b: [f32; 3]) -> [f64; 3] {
 fn normalize3(v: [f64; 3]) -> [f32; 3] {
     let l = v.iter().map(|c| c * c).sum::<f64>().sqrt();
     v.map(|c| (c / l) as f32)
+}
+
+#[test]
+fn block_rows_read_back_from_every_texel_row_of_their_table() {
+    // The trace loop's block-row table is a texture of row_table::WIDTH blocks a texel row:
+    // two full rows and part of a third, every entry distinct.
+    let gpu = gpu();
+    let n = 2 * dcrt::gpu::row_table::WIDTH as usize + 100;
+    let table: Vec<u32> = (0..n as u32)
+        .map(|k| k.wrapping_mul(2_654_435_761) ^ 0x5a5a)
+        .collect();
+    let out = run_mirror(&gpu, &params(), &cases(n), &table).unwrap();
+    for (k, r) in out.iter().enumerate() {
+        assert_eq!(r.row[0], table[k], "block {k}");
+    }
 }
