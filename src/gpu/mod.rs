@@ -205,6 +205,31 @@ impl Gpu {
         })
     }
 
+    /// A texture of `size` texels in `format` that kernels read (`texture_2d_array<u32>`) and
+    /// the host writes, and its view as an array (a single layer included).
+    pub fn uint_texture_array(
+        &self,
+        label: &str,
+        size: wgpu::Extent3d,
+        format: wgpu::TextureFormat,
+    ) -> (wgpu::Texture, wgpu::TextureView) {
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        (texture, view)
+    }
+
     /// A buffer holding `contents`.
     pub fn buffer_init(
         &self,

@@ -42,25 +42,14 @@ impl RowTable {
     }
 
     fn sized(gpu: &Gpu, width: u32, height: u32) -> RowTable {
-        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("block rows"),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Uint,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
         // Bound as a one-layer array: the blocks' binding kind.
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let (texture, view) =
+            gpu.uint_texture_array("block rows", size, wgpu::TextureFormat::R32Uint);
         RowTable { texture, view }
     }
 

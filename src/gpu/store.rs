@@ -245,24 +245,13 @@ fn upload_texture(gpu: &Gpu, rows: &Rows<'_>, shape: TextureShape) -> Result<Vec
     let scope_v = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let parts: Vec<Part> = (0..shape.parts)
         .map(|p| {
-            let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("blocks"),
-                size: wgpu::Extent3d {
-                    width: format.texels(),
-                    height: shape.rows_per_layer,
-                    depth_or_array_layers: shape.part_layers(p),
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rgba32Uint,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            });
-            let view = texture.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            });
+            let size = wgpu::Extent3d {
+                width: format.texels(),
+                height: shape.rows_per_layer,
+                depth_or_array_layers: shape.part_layers(p),
+            };
+            let (texture, view) =
+                gpu.uint_texture_array("blocks", size, wgpu::TextureFormat::Rgba32Uint);
             Part { texture, view }
         })
         .collect();
