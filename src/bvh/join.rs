@@ -9,7 +9,9 @@
 //! 2. each part's first treelet but its root, part after part (the treelets are grown to
 //!    `Top::head` nodes, so that with a few dozen parts the top of every part is in block 0 with
 //!    the top tree, replicated on every rank);
-//! 3. the rest of each part, part after part, in its own blocked layout.
+//! 3. the rest of each part, part after part, in its own blocked layout, each starting a block
+//!    (after `Node::PADDING` nodes) unless it fits in what is left of the block before, so that
+//!    its treelets lie in blocks as the part laid them out.
 //!
 //! Parts are numbered depth-first over the top tree, and their triangles follow each other in
 //! that order, so the joined tree's triangles are in depth-first order as a tree built whole has
@@ -236,9 +238,18 @@ impl Top {
         }
     }
 
-    /// The joined tree, once every part is built; `parts[p]` is depth-first part p.
-    pub fn join(&self, parts: &[PartShape]) -> Joined {
+    /// Whether the join puts each part's nodes after its head at the start of a block, so that
+    /// parts lay their treelets out counting blocks from there (`layout::blocked`): with
+    /// several parts; a single part is numbered as laid out.
+    pub fn rests_start_blocks(&self) -> bool {
+        self.parts() > 1
+    }
+
+    /// The joined tree, once every part is built; `parts[p]` is depth-first part p, in blocks of
+    /// `nodes_per_block` nodes.
+    pub fn join(&self, parts: &[PartShape], nodes_per_block: usize) -> Joined {
         assert_eq!(parts.len(), self.parts());
+        let npb = nodes_per_block.max(1) as u64;
         let first = self.entries.len() as u64;
         let mut head_base = Vec::with_capacity(parts.len());
         let mut at = first;
@@ -247,9 +258,19 @@ impl Top {
             at += u64::from(s.head) - 1;
         }
         let mut rest_base = Vec::with_capacity(parts.len());
+        let mut pads = Vec::with_capacity(parts.len());
         for s in parts {
+            let rest = u64::from(s.nodes - s.head);
+            let room = npb - at % npb;
+            let pad = if self.rests_start_blocks() && rest > room && room < npb {
+                room
+            } else {
+                0
+            };
+            pads.push(pad as u32);
+            at += pad;
             rest_base.push(at);
-            at += u64::from(s.nodes - s.head);
+            at += rest;
         }
         let mut tri_base = Vec::with_capacity(parts.len());
         let mut tris = 0u64;
@@ -302,6 +323,7 @@ impl Top {
             root_at: self.root_at.clone(),
             head_base,
             rest_base,
+            pads,
             tri_base,
         }
     }
@@ -319,6 +341,8 @@ pub struct Joined {
     root_at: Vec<u32>,
     head_base: Vec<u64>,
     rest_base: Vec<u64>,
+    /// `Node::PADDING` nodes before each part's rest.
+    pads: Vec<u32>,
     tri_base: Vec<u64>,
 }
 
@@ -329,6 +353,8 @@ pub enum Run {
     Top(usize),
     /// Part `part`'s nodes `first..first + count`, to be read and mapped (`Joined::map`).
     Part { part: usize, first: u32, count: u32 },
+    /// `Node::PADDING`, this many.
+    Pad(u32),
 }
 
 impl Joined {
@@ -354,13 +380,14 @@ impl Joined {
             });
         }
         for (p, s) in self.parts.iter().enumerate() {
+            runs.push(Run::Pad(self.pads[p]));
             runs.push(Run::Part {
                 part: p,
                 first: s.head,
                 count: s.nodes - s.head,
             });
         }
-        runs.retain(|r| !matches!(r, Run::Part { count: 0, .. }));
+        runs.retain(|r| !matches!(r, Run::Part { count: 0, .. } | Run::Pad(0)));
         runs
     }
 
@@ -406,7 +433,7 @@ impl Joined {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::layout::tests::{check_nodes, soup};
+    use crate::bvh::layout::tests::{check_nodes, check_treelets, soup, treelet_ranges};
     use crate::bvh::{Built, Bvh, Preset, triangle_box};
     use crate::scene::Model;
 
@@ -450,7 +477,7 @@ mod tests {
                     .collect();
                 (
                     groups[g].clone(),
-                    Built::over(&tris, Preset::Fast, npb, head),
+                    Built::over(&tris, Preset::Fast, npb, head, top.rests_start_blocks()),
                 )
             })
             .collect();
@@ -463,11 +490,12 @@ mod tests {
                 triangles: g.len() as u64,
             })
             .collect();
-        let j = top.join(&shapes);
+        let j = top.join(&shapes, npb);
         let mut nodes = Vec::new();
         for run in j.runs() {
             match run {
                 Run::Top(t) => nodes.push(j.top_node(t)),
+                Run::Pad(n) => nodes.extend((0..n).map(|_| Node::PADDING)),
                 Run::Part { part, first, count } => {
                     for l in first..first + count {
                         assert_eq!(j.position(part, l), nodes.len() as u64);
@@ -481,6 +509,16 @@ mod tests {
             .iter()
             .flat_map(|(g, b)| b.laid.prim_ids.iter().map(|&l| g[l as usize]))
             .collect();
+        // Each part's treelets after its head lie in blocks of the joined tree as in the part.
+        for (p, (_, b)) in built.iter().enumerate() {
+            let at = |l: usize| j.position(p, l as u32) as usize;
+            let ranges: Vec<(usize, usize)> = treelet_ranges(&b.laid)
+                .into_iter()
+                .filter(|&(s, _)| s >= b.laid.head)
+                .map(|(s, e)| (at(s), at(e - 1) + 1))
+                .collect();
+            check_treelets(&nodes, &ranges, npb);
+        }
         (nodes, prim_ids, j.depth, top)
     }
 

@@ -67,6 +67,20 @@ pub enum Child {
 }
 
 impl Node {
+    /// A node no tree reaches: the out-of-core build puts these before a part's nodes so that
+    /// they start a block (`join::Top::join`). Every slot is `EMPTY`.
+    pub const PADDING: Node = Node {
+        origin: [0.0; 3],
+        exponents: 0,
+        child_base: 0,
+        tri_base: 0,
+        counts: 0,
+        zero0: 0,
+        lo: [0; 3],
+        hi: [0; 3],
+        zero1: [0; 2],
+    };
+
     /// The byte of slot `i` in a per-slot word.
     fn byte(word: u32, i: usize) -> u32 {
         (word >> (8 * i)) & 0xff
@@ -212,7 +226,13 @@ pub struct Bvh {
 impl Bvh {
     /// Builds over `model`'s triangles; `nodes_per_block` sets the treelet size of the layout.
     pub fn build(model: &Model, preset: Preset, nodes_per_block: usize) -> Bvh {
-        let built = Built::over(&model.triangles, preset, nodes_per_block, nodes_per_block);
+        let built = Built::over(
+            &model.triangles,
+            preset,
+            nodes_per_block,
+            nodes_per_block,
+            false,
+        );
         let triangles = built
             .laid
             .prim_ids
@@ -240,13 +260,15 @@ pub struct Built {
 }
 
 impl Built {
-    /// Builds over `triangles` with obvhs and lays the tree out with treelets of
-    /// `nodes_per_block` nodes, the root's of at most `head`.
+    /// Builds over `triangles` with obvhs and lays the tree out with treelets in blocks of
+    /// `nodes_per_block` nodes, the root's of at most `head` (`layout::blocked`, which says what
+    /// `rest_starts_a_block` means).
     pub fn over(
         triangles: &[[[f32; 3]; 3]],
         preset: Preset,
         nodes_per_block: usize,
         head: usize,
+        rest_starts_a_block: bool,
     ) -> Built {
         let t0 = Instant::now();
         let aabbs: Vec<Aabb> = triangles.iter().map(triangle_box).collect();
@@ -263,7 +285,7 @@ impl Built {
         drop(aabbs);
         let build_time = t0.elapsed();
         let t1 = Instant::now();
-        let laid = layout::blocked(&bvh2, nodes_per_block, head);
+        let laid = layout::blocked(&bvh2, nodes_per_block, head, rest_starts_a_block);
         Built {
             laid,
             build_time,

@@ -277,11 +277,11 @@ fn out_of_core(
     let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds).collect();
     let top = Top::new(&cuts, &boxes);
     let parts: Vec<Part> = top.order.iter().map(|&i| parts[i].clone()).collect();
-    let head = top.head(npb);
+    let head = (top.head(npb), top.rests_start_blocks());
 
     let built = build_parts(&parts, o, head, scratch)?;
     mark("build parts", &mut phases);
-    let joined = top.join(&built.shapes);
+    let joined = top.join(&built.shapes, npb);
     if joined.nodes >= u64::from(u32::MAX) {
         return Err(Error::Invalid(format!(
             "the model needs {} BVH nodes, more than 2^32",
@@ -351,9 +351,15 @@ struct BuiltParts {
     order: PathBuf,
 }
 
-/// Builds and lays out each part (its first treelet `head` nodes at most), spilling its nodes
-/// and triangle order.
-fn build_parts(parts: &[Part], o: &Options, head: usize, scratch: &Scratch) -> Result<BuiltParts> {
+/// Builds and lays out each part (its first treelet `head.0` nodes at most; with `head.1` its
+/// treelets counted from the first node after the head, `Top::rests_start_blocks`), spilling
+/// its nodes and triangle order.
+fn build_parts(
+    parts: &[Part],
+    o: &Options,
+    head: (usize, bool),
+    scratch: &Scratch,
+) -> Result<BuiltParts> {
     let count = parts.iter().map(|p| p.count).sum();
     let bar = o
         .progress
@@ -370,7 +376,7 @@ fn build_parts(parts: &[Part], o: &Options, head: usize, scratch: &Scratch) -> R
         while let Some(chunk) = r.next_chunk()? {
             tris.extend(chunk.iter().map(|r| r.tri));
         }
-        let built = Built::over(&tris, o.preset, npb, head);
+        let built = Built::over(&tris, o.preset, npb, head.0, head.1);
         drop(tris);
         at.push((nodes.count, order.count));
         nodes.push(&built.laid.nodes)?;
@@ -411,6 +417,11 @@ fn write_blocks(
             Run::Top(t) => {
                 let node = joined.top_node(t);
                 nodes.push(out, bar, |b, s| format.put_node(b, s, &node))?
+            }
+            Run::Pad(count) => {
+                for _ in 0..count {
+                    nodes.push(out, bar, |b, s| format.put_node(b, s, &Node::PADDING))?;
+                }
             }
             Run::Part { part, first, count } => {
                 let mut l = first;

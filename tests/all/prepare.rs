@@ -6,7 +6,7 @@
 use crate::common::*;
 use dcrt::blocks::Blocks;
 use dcrt::blocks::file::DcbFile;
-use dcrt::bvh::{Child, WIDTH};
+use dcrt::bvh::{Child, Node, WIDTH};
 use dcrt::output::{ExrSamples, read_exr};
 use std::ffi::OsStr;
 use std::path::Path;
@@ -154,6 +154,12 @@ fn out_of_core_prepare_makes_the_same_model_as_in_memory() {
         (fb.meta.bounds_min, fb.meta.bounds_max)
     );
     assert_eq!(fa.meta.mesh_first, [0, count as u32 - 2]);
+    // Parts' nodes after their heads start blocks, after padding that no node reaches.
+    let padding = (0..fb.meta.nodes as u32).filter(|&i| b.node(i) == Node::PADDING);
+    assert!(
+        padding.count() > 0,
+        "no part's nodes were moved to a block's start"
+    );
     let ids = walk(&b);
     let mut sorted = ids.clone();
     sorted.sort_unstable();
