@@ -78,7 +78,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             path.tri = r.hit;
             path.n = select(n, -n, dot(n, d) > 0.0);
             let mesh = meshes[mesh_of(r.prim)];
-            path.albedo = select(mesh.color.xyz, albedos[base + kb].xyz, mesh.look != LOOK_CONSTANT);
+            path.albedo = mesh.color.xyz;
+            if COLORED && mesh.look != LOOK_CONSTANT {
+                path.albedo = albedos[base + kb].xyz;
+            }
             path.depth += 1u;
             if path.depth >= shading.max_depth {
                 path.alive = 0u;

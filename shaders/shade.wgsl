@@ -42,7 +42,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         let n = vec3(r.nx, r.ny, r.nz);
         let d = ray_dir(r);
         let mesh = meshes[mesh_of(r.prim)];
-        let albedo = select(mesh.color.xyz, albedos[i].xyz, mesh.look != LOOK_CONSTANT);
+        var albedo = mesh.color.xyz;
+        if COLORED && mesh.look != LOOK_CONSTANT {
+            albedo = albedos[i].xyz;
+        }
         if MODE == MODE_CAST {
             c = albedo * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, d)));
         } else {

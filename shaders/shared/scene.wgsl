@@ -19,6 +19,9 @@ struct MeshInfo {
 const LOOK_CONSTANT: u32 = 0u;
 const LOOK_SCALARS: u32 = 1u;
 const LOOK_COLORS: u32 = 2u;
+// Whether the model has colour data (attribute blocks): without it no kernel reads an albedo
+// slot, which costs a CPU driver a loop over the lanes per read even where a select drops it.
+override COLORED: bool = true;
 
 @group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
 

@@ -439,6 +439,7 @@ impl<'g> Tracer<'g> {
         constants.push(("DEFER_SLOTS", f64::from(slots)));
         constants.push(("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH)));
         let colored = attrs.words > 0;
+        constants.push(("COLORED", if colored { 1.0 } else { 0.0 }));
         let mode = settings.shading.mode;
         let kernels = Kernels::new(gpu, store.module(), &constants, mode, colored);
         let meshes = model.meshes.infos();
