@@ -211,20 +211,25 @@ fn node(i: u64, n: &Node, m: &Meta) -> Result<(), String> {
     Ok(())
 }
 
-/// With every block at hand: the tree's depth is the declared one (the GPU's traversal stack is
-/// sized by it). Run after `block` has checked each block, so children lie after parents and the
+/// With every block at hand: the tree reaches no `Node::PADDING`, and its depth is the declared
+/// one (the GPU's traversal stack is sized by it). Run after `block` has checked each block, so children lie after parents and the
 /// walk ends.
 pub fn depth(blocks: &Blocks, declared: u32) -> Result<(), String> {
     let mut stack = vec![(0u32, 1u32)];
     let mut deepest = 0;
     while let Some((i, d)) = stack.pop() {
+        let n = blocks.node(i);
+        if n == Node::PADDING {
+            // `block` lets padding pass (it cannot tell what reaches a node): reached, it would
+            // hide a subtree.
+            return Err(format!("node {i} is padding, which no node may reach"));
+        }
         deepest = deepest.max(d);
         if deepest > declared {
             return Err(format!(
                 "the tree is deeper than the declared BVH depth {declared}"
             ));
         }
-        let n = blocks.node(i);
         for s in 0..WIDTH {
             if let Child::Inner(c) = n.child(s) {
                 stack.push((c, d + 1));

@@ -539,6 +539,12 @@ mod tests {
             &meta,
             "block 0 (owner rank 0): malformed: node 0",
         );
+        // A node the root reaches, zeroed: padding, which only unreached places may hold.
+        check(
+            &edit(&|b| b.words[16..32].fill(0)),
+            &meta,
+            "node 1 is padding",
+        );
         // Word 4 is the root's `child_base`, 5 its `tri_base`.
         check(
             &edit(&|b| b.words[4] = 4_000_000),
