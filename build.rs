@@ -89,12 +89,17 @@ fn bindings(m: &naga::Module, kernel: &str) -> Result<Vec<String>, String> {
                 naga::TypeInner::Image {
                     dim: naga::ImageDimension::D2,
                     arrayed: true,
-                    class:
-                        naga::ImageClass::Sampled {
-                            kind: naga::ScalarKind::Uint,
-                            multi: false,
-                        },
-                } => "BindingKind::UintTexture2dArray".to_string(),
+                    class: naga::ImageClass::Storage { format, access },
+                } if access == naga::StorageAccess::LOAD
+                    && matches!(
+                        format,
+                        naga::StorageFormat::Rgba32Uint | naga::StorageFormat::R32Uint
+                    ) =>
+                {
+                    format!(
+                        "BindingKind::ReadOnlyTexture2dArray {{ format: wgpu::TextureFormat::{format:?} }}"
+                    )
+                }
                 ref other => {
                     return Err(format!(
                         "shaders/{kernel}: binding {name} has a type the host cannot bind: {other:?}"

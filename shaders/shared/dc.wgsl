@@ -19,11 +19,11 @@ struct Faults {
 // the ownership and tag arithmetic. The host updates it between rounds. A texture of
 // ROW_TABLE_WIDTH blocks a texel row (gpu::row_table), not a buffer: a CPU driver fetches texels
 // through a gather, and runs a buffer load as a loop over the lanes that stalls in each.
-@group(0) @binding(3) var block_rows: texture_2d_array<u32>;
+@group(0) @binding(3) var block_rows: texture_storage_2d_array<r32uint, read>;
 override ROW_TABLE_WIDTH: u32 = 4096u;  // the host's gpu::row_table::WIDTH
 
 fn block_row(k: u32) -> u32 {
-    return textureLoad(block_rows, vec2(k % ROW_TABLE_WIDTH, k / ROW_TABLE_WIDTH), 0, 0).x;
+    return textureLoad(block_rows, vec2(k % ROW_TABLE_WIDTH, k / ROW_TABLE_WIDTH), 0).x;
 }
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block

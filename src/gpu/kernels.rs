@@ -43,10 +43,10 @@ fn layout_entry(b: &shaders::BindingInfo) -> wgpu::BindGroupLayoutEntry {
             has_dynamic_offset: false,
             min_binding_size: None,
         },
-        BindingKind::UintTexture2dArray => wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Uint,
+        BindingKind::ReadOnlyTexture2dArray { format } => wgpu::BindingType::StorageTexture {
+            access: wgpu::StorageTextureAccess::ReadOnly,
+            format,
             view_dimension: wgpu::TextureViewDimension::D2Array,
-            multisampled: false,
         },
     };
     wgpu::BindGroupLayoutEntry {

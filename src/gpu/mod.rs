@@ -205,8 +205,9 @@ impl Gpu {
         })
     }
 
-    /// A texture of `size` texels in `format` that kernels read (`texture_2d_array<u32>`) and
-    /// the host writes, and its view as an array (a single layer included).
+    /// A texture of `size` texels in `format` that kernels read (a read-only
+    /// `texture_storage_2d_array`) and the host writes, and its view as an array (a single
+    /// layer included).
     pub fn uint_texture_array(
         &self,
         label: &str,
@@ -220,7 +221,7 @@ impl Gpu {
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
         let view = texture.create_view(&wgpu::TextureViewDescriptor {

@@ -33,8 +33,12 @@ pub enum BindingKind {
     Storage {
         read_only: bool,
     },
-    /// `texture_2d_array<u32>`.
-    UintTexture2dArray,
+    /// `texture_storage_2d_array<F, read>` of a 32-bit unsigned format F: the texel loads of
+    /// a read-only storage texture have no mip levels to handle, which a sampled texture's
+    /// `textureLoad` does lane by lane on a CPU driver.
+    ReadOnlyTexture2dArray {
+        format: wgpu::TextureFormat,
+    },
 }
 
 /// One `@group(g) @binding(b) var name` of a kernel.
