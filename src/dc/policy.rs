@@ -104,6 +104,12 @@ impl CachePolicy {
         &self.block_rows
     }
 
+    /// Whether every node block is on this rank's GPU (replicated), so that only triangle and
+    /// attribute blocks fault.
+    pub fn nodes_resident(&self) -> bool {
+        self.ranks.replicated >= self.node_blocks
+    }
+
     /// The block line `line` holds, if any.
     pub fn tag(&self, line: u32) -> Option<u32> {
         let t = self.tags[line as usize];
@@ -207,6 +213,16 @@ mod tests {
 
     fn policy(n: u32, rank: u32, map: CacheMap, lines: u32, count: u32) -> CachePolicy {
         CachePolicy::new(Ranks::new(n, rank).unwrap(), map, lines, count, 0)
+    }
+
+    #[test]
+    fn the_nodes_are_resident_when_every_node_block_is_replicated() {
+        // 3 node blocks of 10: the root alone leaves two to fault on, all three none.
+        let ranks = Ranks::new(4, 1).unwrap();
+        let root = CachePolicy::new(ranks, CacheMap::Lru, 2, 10, 3);
+        assert!(!root.nodes_resident());
+        let nodes = CachePolicy::new(ranks.replicating(3), CacheMap::Lru, 2, 10, 3);
+        assert!(nodes.nodes_resident());
     }
 
     #[test]
