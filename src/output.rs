@@ -130,7 +130,7 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                     SIGINT => "SIGINT",
                     _ => "SIGHUP",
                 };
-                eprintln!(
+                crate::report!(
                     "error: interrupted by {name}; removed the {} output file(s) this run wrote",
                     w.done.len()
                 );

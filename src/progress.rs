@@ -59,8 +59,30 @@ fn rate(state: &ProgressState, w: &mut dyn std::fmt::Write) {
 /// Prints a line on stderr above `bar` (or plainly when the bar is not drawn).
 pub fn say(bar: &ProgressBar, line: String) {
     if bar.is_hidden() {
-        eprintln!("{line}");
+        stderr_line(&line);
     } else {
         bar.println(line);
     }
+}
+
+/// Writes `line` and a newline to stderr in one write. `eprintln!` writes a formatted line piece
+/// by piece, and under mpirun the pieces of one rank's line can be forwarded apart, with Open
+/// MPI's own messages between them (a user, or a test, then cannot find the line). One write of
+/// under 4 KiB to a pipe is atomic.
+pub fn stderr_line(line: &str) {
+    use std::io::Write;
+    let mut text = String::with_capacity(line.len() + 1);
+    text.push_str(line);
+    text.push('\n');
+    // Nothing to do when stderr itself cannot be written.
+    let _ = std::io::stderr().lock().write_all(text.as_bytes());
+}
+
+/// `eprintln!` in one write (see [`stderr_line`]); every message of the crate and the `dcrt`
+/// binary goes through it (clippy.toml disallows `eprintln!`).
+#[macro_export]
+macro_rules! report {
+    ($($arg:tt)*) => {
+        $crate::progress::stderr_line(&format!($($arg)*))
+    };
 }

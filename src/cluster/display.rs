@@ -214,7 +214,7 @@ impl<'a> Display<'a> {
 /// One line per frame on stderr, from the render ranks' reports.
 fn summarize(f: u32, render: &[FrameReport], span_ms: f64, opts: &Options) {
     let slowest = render.iter().map(|r| r.stats.seconds).fold(0.0, f64::max);
-    eprintln!(
+    crate::report!(
         "frame {f}: {} render ranks, slowest {:.1} ms, pixels over {:.1} ms, {} tiles, {} fault \
          rounds, {} blocks fetched ({:.1} ms fetching), wrote {}",
         render.len(),

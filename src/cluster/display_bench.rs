@@ -74,6 +74,6 @@ pub fn measure(
         "mpi_bytes_per_s": mpi_bps, "ceiling_fps": mpi_bps / (px * bpp),
         "ratio": pps * bpp / mpi_bps,
     });
-    eprintln!("display benchmark: {report}");
+    crate::report!("display benchmark: {report}");
     Ok(report)
 }

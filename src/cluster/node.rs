@@ -21,7 +21,7 @@ pub fn run(opts: &Options) -> Result<()> {
     let default_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         default_hook(info);
-        eprintln!("rank {rank}: panic: aborting the job");
+        crate::report!("rank {rank}: panic: aborting the job");
         rma::abort_world(101);
     }));
 
@@ -46,7 +46,7 @@ pub fn run(opts: &Options) -> Result<()> {
         _ => Err(Error::Mpi("a render rank without its communicator".into())),
     };
     if let Err(e) = result {
-        eprintln!("rank {rank}: error: {e}");
+        crate::report!("rank {rank}: error: {e}");
         rma::abort_world(1);
     }
     Failure::from_env(rank).at_end();
@@ -65,7 +65,7 @@ fn last_barrier(world: &SimpleCommunicator, rank: u32, timeout: Duration) {
             Err(r) => r,
         };
         if start.elapsed() > timeout {
-            eprintln!(
+            crate::report!(
                 "rank {rank}: error: not every rank reached the end of the job within {} s: a \
                  rank has hung or died",
                 timeout.as_secs_f64()

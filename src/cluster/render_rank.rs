@@ -71,7 +71,7 @@ pub fn run(
     let bw = format.words() as usize;
     let mut tracer: Tracer<'_> = match dc {
         None => {
-            eprintln!(
+            crate::report!(
                 "rank {rank} (render): replicated, {:.1} MiB of blocks",
                 mib(loaded.model_bytes())
             );
@@ -81,7 +81,7 @@ pub fn run(
             let owned = ranks.owned(loaded.block_count()) as usize;
             let window = rma::Window::create(comm, &resident[..owned * bw])?;
             let lines = size.lines(loaded.block_count(), format.block_bytes);
-            eprintln!(
+            crate::report!(
                 "rank {rank} (render {} of {}): {:.1} MiB resident ({} own blocks + {} replicated), \
                  {:.1} MiB exposed to the others, {:.1} MiB cache ({lines} lines, {map:?}) of a \
                  {:.1} MiB model",
@@ -166,7 +166,7 @@ pub fn run(
 /// The value, or the error reported and the job aborted.
 fn or_abort<T>(rank: u32, r: Result<T>) -> T {
     r.unwrap_or_else(|e| {
-        eprintln!("rank {rank}: error: {e}");
+        crate::report!("rank {rank}: error: {e}");
         rma::abort_world(1)
     })
 }

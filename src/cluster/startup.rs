@@ -111,7 +111,7 @@ pub fn start(
     // Said before anything else: once any rank exits non-zero, mpirun may kill the others
     // before they print.
     if let Err(e) = &opened {
-        eprintln!("error: rank {rank}: {e}");
+        crate::report!("error: rank {rank}: {e}");
     }
     let check = match &opened {
         Ok(o) => o.report,
@@ -122,7 +122,7 @@ pub fn start(
     let opened = opened.ok()?;
     if let Some((concerned, problem)) = disagreement(&all, roles) {
         if rank == 0 || concerned == rank {
-            eprintln!("error: {problem}");
+            crate::report!("error: {problem}");
         }
         return None;
     }
@@ -168,7 +168,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     let dc = match opts.cache {
         // A single render rank owns every block: a cache would only slow its pipelines down.
         Some(_) if roles.render_ranks() == 1 => {
-            eprintln!("rank {rank}: the only render rank owns every block: no cache needed");
+            crate::report!("rank {rank}: the only render rank owns every block: no cache needed");
             None
         }
         None => None,

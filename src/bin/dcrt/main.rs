@@ -476,7 +476,7 @@ fn main() -> ExitCode {
         _ => std::time::Duration::ZERO,
     };
     if let Err(e) = dcrt::output::remove_on_interrupt(grace) {
-        eprintln!("error: {e}");
+        dcrt::report!("error: {e}");
         return ExitCode::FAILURE;
     }
     let result = match cli.command {
@@ -493,7 +493,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", message(&e));
+            dcrt::report!("error: {}", message(&e));
             ExitCode::FAILURE
         }
     }

@@ -38,7 +38,7 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
             budget.bytes >> 20
         ),
     };
-    eprintln!(
+    dcrt::report!(
         "{} triangles, {} node + {} triangle{} blocks of {} bytes ({} MiB), BVH depth {}, built \
          {how} in {:.1} s, wrote {}",
         r.triangles,
@@ -59,7 +59,7 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
         .iter()
         .map(|(name, s)| format!("{name} {s:.1} s"))
         .collect();
-    eprintln!(
+    dcrt::report!(
         "  {}; {:.2} M triangles/s",
         phases.join(", "),
         r.triangles as f64 / r.seconds / 1e6

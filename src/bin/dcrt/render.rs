@@ -96,7 +96,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     let exr_channels = a.exr.as_ref().map_or(0, |_| memory::exr_channels(&a.aov));
     memory::check_image_with_exr(width, height, exr_channels, memory::available())?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
-    eprintln!("adapter: {}", gpu.describe());
+    dcrt::report!("adapter: {}", gpu.describe());
     let shading = a.shade.apply(loaded.shading)?;
     let s = Settings {
         shading,
@@ -107,7 +107,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     match &dc {
         Some(o) => {
             let m = o.memory(loaded.block_count(), loaded.node_blocks(), loaded.format())?;
-            eprintln!(
+            dcrt::report!(
                 "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}; blocks in \
                  {}) of a {:.1} MiB model",
                 o.rank,
@@ -120,7 +120,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                 mib(loaded.model_bytes())
             );
         }
-        None => eprintln!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
+        None => dcrt::report!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
     }
     // How far the render is: a bar over every frame's sample passes on a terminal; elsewhere a
     // long frame's line no more often than --progress-every; nothing with --quiet.
@@ -134,7 +134,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
         tracer.set_progress(Some(Box::new(move |done, total| {
             if !quiet && done < total && last.elapsed() >= every {
                 last = std::time::Instant::now();
-                eprintln!("  {done} of {total} sample passes");
+                dcrt::report!("  {done} of {total} sample passes");
             }
         })));
     } else {

@@ -73,7 +73,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         let camera = scene.camera_or_default(&p.model);
         let path = dir.join(format!("{name}.dcb"));
         dcrt::blocks::file::write(&path, &p.blocks, &p.meta(scene, camera, a.width, a.height))?;
-        eprintln!(
+        dcrt::report!(
             "{name}: {} triangles, {:.1} MiB of blocks",
             p.model.triangles.len(),
             mib(p.blocks.bytes())

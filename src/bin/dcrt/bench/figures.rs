@@ -264,7 +264,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
                     runs: Vec::new(),
                 });
             }
-            eprintln!(
+            dcrt::report!(
                 "{name} {cache}: runs at {:?} ranks, simulated from {k}",
                 a.ranks
             );

@@ -40,7 +40,7 @@ pub fn run(seconds: f64, json: bool) -> Result<()> {
     }
     // Panics are expected findings: report them, not the default hook's backtrace noise.
     std::panic::set_hook(Box::new(|info| {
-        eprintln!("  panic: {info}");
+        dcrt::report!("  panic: {info}");
     }));
     let crashes = PathBuf::from("fuzz-crashes");
     let mut tallies = Vec::new();
@@ -142,7 +142,7 @@ fn fuzz(format: &'static str, seeds: &[Vec<u8>], time: Duration, crashes: &Path)
             std::fs::create_dir_all(crashes)?;
             let file = crashes.join(format!("{format}-{}.{format}", t.crashes));
             std::fs::write(&file, &bytes)?;
-            eprintln!("{format}: {what}: input saved as {}", file.display());
+            dcrt::report!("{format}: {what}: input saved as {}", file.display());
         }
     }
     Ok(t)
