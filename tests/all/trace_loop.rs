@@ -62,6 +62,24 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     assert!(rays.iter().any(|r| r.steps > 5 * 4));
 }
 
+/// A frame's `steps` is the sum of its rays' own: the trace kernel's per-workgroup sum of its
+/// invocations' counts (`wg_counts`) loses none.
+#[test]
+fn frame_steps_are_the_sum_of_every_ray_s_steps() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let mut tracer = prepared.tracer(&gpu, Settings::default()).unwrap();
+    let (_, stats) = tracer
+        .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
+        .unwrap();
+    assert_eq!(stats.batches, 1, "one batch, whose rays read back");
+    let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
+    let own: u64 = rays.iter().map(|r| u64::from(r.steps)).sum();
+    assert!(own > 96 * 96, "every ray took steps");
+    assert_eq!(stats.steps, own);
+}
+
 #[test]
 fn batches_in_bands_give_the_same_image() {
     // 384x48 pixels (48 x 6 tiles) in batches of 16 tiles would be stripes 48 times wider than
