@@ -26,7 +26,9 @@ fn block_row(k: u32) -> u32 {
     return textureLoad(block_rows, vec2(k % ROW_TABLE_WIDTH, k / ROW_TABLE_WIDTH), 0).x;
 }
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
-@group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;  // bit per block
+// Per block, this round: 0 while no ray has requested it, else the complement of its least
+// requester (`request`), which the host reads back.
+@group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
 // Per cache line, nonzero once a ray of the round found its block there: the host's recency for
 // the Lru mapping, and with the fault list the frame's distinct borrowed blocks. Then, at
@@ -94,18 +96,20 @@ fn keep_line(row: u32) {
     }
 }
 
-// Records a fault on block k, once per round however many rays ask. The ray whose request lists
-// the block is its requester, `who` (`requester`, or NONE for kernels without ray slots): the
-// list holds it at dc_fault_cap + the block's place, so the host can tell which tiles of which
-// batch need the blocks (gpu::rounds::FaultDensity).
+// Records a fault on block k, listed once per round however many rays ask. Every request also
+// keeps the block's least requester, `who` (`requester`, or NONE for kernels without ray slots):
+// the host serves a block by it and counts it to that ray's tile (gpu::rounds::serve_order,
+// FaultDensity). The least, not the first to list the block: which ray is first depends on how
+// the driver's threads interleave the workgroups, and the rounds with it.
 fn request(k: u32, who: u32) {
     atomicAdd(&waiters[cache_line(k)], 1u);
-    let bit = 1u << (k % 32u);
-    if (atomicOr(&requested[k / 32u], bit) & bit) == 0u {
+    // The complement orders the least requester highest; a kernel without ray slots asks with 1,
+    // below every ray (and 0 stays "not requested").
+    let key = select(~who, 1u, who == NONE);
+    if atomicMax(&requested[k], key) == 0u {
         let i = atomicAdd(&faults.count, 1u);
         if i < params.dc_fault_cap {
             faults.blocks[i] = k;
-            faults.blocks[params.dc_fault_cap + i] = who;
         } else {
             atomicAdd(&faults.dropped, 1u);
         }

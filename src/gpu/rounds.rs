@@ -153,7 +153,16 @@ impl Tracer<'_> {
             self.check_overflows(&s)?;
             enc = gpu.device.create_command_encoder(&Default::default());
             if self.dc.is_some() {
-                let faults = self.read_faults()?;
+                let mut faults = self.read_faults()?;
+                // One batch: its faults by requester ray slot, as `render_overlapped` serves them.
+                let keys: Vec<u64> = faults
+                    .requesters
+                    .iter()
+                    .map(|&who| {
+                        requester_lane(who).map_or(u64::MAX, |(_, ray)| serve_order(0, ray))
+                    })
+                    .collect();
+                faults.order_by(&keys);
                 let waiters = gpu.map_read(&self.batch.waiter_readback)?;
                 let when = (submitted, waited, gpu_ms);
                 self.serve_faults(&faults, &waiters, r.counter.count, live_rounds, when, stats)?;
@@ -355,7 +364,7 @@ impl Tracer<'_> {
             let waiters = gpu.map_read(&self.batch.waiter_readback)?;
             let used: &[u8] = &waiters[4 * lines as usize..8 * lines as usize];
             used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
-            // Each listed block counts to the tile of the ray that listed it, and the oldest
+            // Each listed block counts to the tile of its least requester, and the oldest
             // batch's blocks get lines first (`serve_order`): its rays hold a lane, and its
             // faults would otherwise wait behind those of every newer batch.
             let mut ages = Vec::with_capacity(faults.blocks.len());
@@ -415,8 +424,8 @@ impl Tracer<'_> {
     }
 
     /// The last frame's faults per 8x8 tile of its rectangle, row by row (`FaultDensity`): of the
-    /// blocks each tile's batch faulted on, how many a ray of the tile listed first. `None` until
-    /// a frame has been traced in batches sized to a short cache.
+    /// blocks each tile's batch faulted on, how many had a ray of the tile as least requester.
+    /// `None` until a frame has been traced in batches sized to a short cache.
     pub fn tile_faults(&self) -> Option<(Rect, Vec<f64>)> {
         let d = self.density.as_ref()?;
         Some((d.rect, d.per_tile.clone()))
@@ -538,6 +547,8 @@ impl Tracer<'_> {
         let (bufs, b) = (&self.dc_bufs, &self.batch);
         let bytes = fault_bytes(self.params.dc_fault_cap);
         enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
+        let r = &bufs.requested_readback;
+        enc.copy_buffer_to_buffer(&bufs.requested, 0, r, 0, bufs.requested.size());
         let wait_bytes = 4 * u64::from(dc.policy.lines());
         let r = &b.waiter_readback;
         enc.copy_buffer_to_buffer(&bufs.waiters, 0, r, 0, wait_bytes);
@@ -554,10 +565,11 @@ impl Tracer<'_> {
         }
     }
 
-    /// Reads back a round's fault list (`copy_faults`).
+    /// Reads back a round's fault list and its blocks' least requesters (`copy_faults`).
     fn read_faults(&self) -> Result<FaultList> {
         let bytes = self.gpu.map_read(&self.batch.fault_readback)?;
-        Ok(FaultList::read(&bytes, self.params.dc_fault_cap))
+        let least = self.gpu.map_read(&self.dc_bufs.requested_readback)?;
+        Ok(FaultList::read(&bytes, self.params.dc_fault_cap, &least))
     }
 
     /// Serves a round's faults, in the list's order: the cache policy plans the loads, the block
@@ -700,24 +712,36 @@ struct FaultList {
 }
 
 impl FaultList {
-    /// Parses the fault buffer's bytes (`batch::fault_bytes(cap)`): the header, `cap` block
-    /// words, then `cap` requester words.
-    fn read(bytes: &[u8], cap: u32) -> FaultList {
+    /// Parses the fault buffer's bytes (`batch::fault_bytes(cap)`: the header, then `cap` block
+    /// words) and takes each listed block's requester from `least` (the `requested` buffer: a
+    /// word per block, the complement of its least requester, 1 for a kernel without rays).
+    fn read(bytes: &[u8], cap: u32, least: &[u8]) -> FaultList {
         let head = size_of::<FaultHeader>();
         let header: FaultHeader = bytemuck::pod_read_unaligned(&bytes[..head]);
-        let (n, cap) = (header.count.min(cap) as usize, cap as usize);
-        let words = |at: usize| bytemuck::pod_collect_to_vec(&bytes[head + 4 * at..][..4 * n]);
+        let n = header.count.min(cap) as usize;
+        let blocks: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes[head..][..4 * n]);
+        let requesters = blocks
+            .iter()
+            .map(|&k| {
+                let at = 4 * k as usize;
+                let key = least.get(at..at + 4).map_or(0, |w| {
+                    u32::from_ne_bytes(w.try_into().expect("a word is 4 bytes"))
+                });
+                if key <= 1 { NONE } else { !key }
+            })
+            .collect();
         FaultList {
             header,
-            blocks: words(0),
-            requesters: words(cap),
+            blocks,
+            requesters,
         }
     }
 
-    /// Orders the faults by `keys` (one a fault), ties in the order the GPU listed them.
+    /// Orders the faults by `keys` (one a fault), ties by block: the order the GPU listed them
+    /// in depends on how its threads interleaved.
     fn order_by(&mut self, keys: &[u64]) {
         let mut order: Vec<usize> = (0..self.blocks.len()).collect();
-        order.sort_by_key(|&i| (keys[i], i));
+        order.sort_by_key(|&i| (keys[i], self.blocks[i]));
         self.blocks = order.iter().map(|&i| self.blocks[i]).collect();
         self.requesters = order.iter().map(|&i| self.requesters[i]).collect();
     }
@@ -833,7 +857,8 @@ fn fill_share(spares: usize) -> f64 {
 const MANY_SPARES: usize = 4;
 
 /// Where a rectangle's blocks are dense: per 8x8 tile (by position, whatever the batch order),
-/// how many of the blocks its batch faulted on in the last frame a ray of the tile listed first.
+/// how many of the blocks its batch faulted on in the last frame had a ray of the tile as least
+/// requester.
 pub(super) struct FaultDensity {
     rect: Rect,
     tiles_x: u32,
@@ -919,24 +944,29 @@ mod tests {
 
     #[test]
     fn a_fault_list_reads_its_requesters_and_serves_the_oldest_batch_first() {
-        // Capacity 4, three faults listed: blocks then requesters at the capacity's offset.
+        // Capacity 4, three faults listed; the blocks' least requesters, complemented, per block
+        // (`request` in shaders/shared/dc.wgsl): block 1 by a kernel without rays (1).
         let who = |lane: u32, ray: u32| (lane << REQUESTER_LANE_SHIFT) | ray;
         let header = FaultHeader {
             count: 3,
             ..Default::default()
         };
-        let mut words = vec![70, 71, 72, 0, who(2, 5), NONE, who(0, (1 << 28) - 1), 0];
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
-        bytes.extend(words.drain(..).flat_map(u32::to_ne_bytes));
-        let mut f = FaultList::read(&bytes, 4);
-        assert_eq!(f.blocks, [70, 71, 72]);
+        bytes.extend([2u32, 1, 0, 0].iter().flat_map(|w| w.to_ne_bytes()));
+        let least: Vec<u8> = [0, 1, !who(2, 5), !who(0, (1 << 28) - 1)]
+            .iter()
+            .flat_map(|w: &u32| w.to_ne_bytes())
+            .collect();
+        let mut f = FaultList::read(&bytes, 4, &least);
+        assert_eq!(f.blocks, [2, 1, 0]);
         assert_eq!(requester_lane(f.requesters[0]), Some((2, 5)));
         assert_eq!(requester_lane(f.requesters[1]), None);
-        assert_eq!(requester_lane(f.requesters[2]), Some((0, (1 << 28) - 1)));
-        // Ages 3, none (last), 1: the oldest first, ties in the listed order.
-        f.order_by(&[3, u64::MAX, 1]);
-        assert_eq!(f.blocks, [72, 70, 71]);
-        assert_eq!(f.requesters[0], who(0, (1 << 28) - 1));
+        // Block 0 listed but never requested (cannot happen) reads as no requester.
+        assert_eq!(requester_lane(f.requesters[2]), None);
+        // Ages 3, none (last), none: the oldest first, ties by block.
+        f.order_by(&[3, u64::MAX, u64::MAX]);
+        assert_eq!(f.blocks, [2, 0, 1]);
+        assert_eq!(f.requesters[0], who(2, 5));
     }
 
     #[test]

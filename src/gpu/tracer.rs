@@ -188,7 +188,10 @@ pub(super) struct Dc {
 pub(super) struct DcBuffers {
     pub rows: super::row_table::RowTable,
     pub faults: wgpu::Buffer,
+    /// Per block, the complement of its least requester this round (`request` in
+    /// shaders/shared/dc.wgsl), and its read-back.
     pub requested: wgpu::Buffer,
+    pub requested_readback: wgpu::Buffer,
     pub waiters: wgpu::Buffer,
     pub line_used: wgpu::Buffer,
 }
@@ -472,6 +475,7 @@ impl<'g> Tracer<'g> {
                     rows: super::row_table::RowTable::placeholder(gpu),
                     faults: p(),
                     requested: p(),
+                    requested_readback: p(),
                     waiters: p(),
                     line_used: p(),
                 };
@@ -510,8 +514,13 @@ impl<'g> Tracer<'g> {
                     ),
                     requested: gpu.buffer(
                         "requested",
-                        4 * u64::from(blocks.div_ceil(32)),
-                        U::STORAGE | U::COPY_DST,
+                        4 * u64::from(blocks),
+                        U::STORAGE | U::COPY_SRC | U::COPY_DST,
+                    ),
+                    requested_readback: gpu.buffer(
+                        "requested readback",
+                        4 * u64::from(blocks),
+                        U::MAP_READ | U::COPY_DST,
                     ),
                     waiters: gpu.buffer(
                         "waiters",
