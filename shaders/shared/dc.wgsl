@@ -7,7 +7,8 @@
 // no cache check at all.
 override DC: bool = false;
 
-// Mirrors gpu::layout::FaultHeader, followed by the deduplicated list of faulted blocks.
+// Mirrors gpu::layout::FaultHeader, followed by dc_fault_cap words of the round's deduplicated
+// faulted blocks, then as many of their least requesters (written by requesters.wgsl).
 struct Faults {
     count: atomic<u32>,
     dropped: atomic<u32>,
@@ -27,7 +28,7 @@ fn block_row(k: u32) -> u32 {
 }
 @group(0) @binding(4) var<storage, read_write> faults: Faults;
 // Per block, this round: 0 while no ray has requested it, else the complement of its least
-// requester (`request`), which the host reads back.
+// requester (`request`), which requesters.wgsl moves into the fault list, clearing the word.
 @group(0) @binding(5) var<storage, read_write> requested: array<atomic<u32>>;
 @group(0) @binding(6) var<storage, read_write> waiters: array<atomic<u32>>;    // per cache line
 // Per cache line, nonzero once a ray of the round found its block there: the host's recency for

@@ -53,10 +53,10 @@ impl Lists {
     }
 }
 
-/// Bytes of the fault list for `cap` blocks: the header, then the blocks
-/// (`shaders/shared/dc.wgsl`, request).
+/// Bytes of the fault list for `cap` blocks: the header, the blocks (`request` in
+/// shaders/shared/dc.wgsl), then each block's least requester (shaders/requesters.wgsl).
 pub fn fault_bytes(cap: u32) -> u64 {
-    size_of::<FaultHeader>() as u64 + 4 * u64::from(cap)
+    size_of::<FaultHeader>() as u64 + 8 * u64::from(cap)
 }
 
 impl Batch {

@@ -186,6 +186,8 @@ pub struct Kernels {
     pub raygen: Kernel,
     pub trace: Kernel,
     pub args: Kernel,
+    /// With a cache, after each round: the listed faults' requesters into the fault list.
+    pub requesters: Kernel,
     pub shade: Kernel,
     pub probe: Kernel,
     pub spawn: Option<Kernel>,
@@ -210,6 +212,7 @@ impl Kernels {
             raygen: k("raygen"),
             trace: k("trace"),
             args: k("args"),
+            requesters: k("requesters"),
             shade: k("shade"),
             probe: k("probe"),
             spawn: waves.then(|| k("spawn")),

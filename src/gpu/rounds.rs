@@ -538,17 +538,19 @@ impl Tracer<'_> {
         })
     }
 
-    /// Copies a round's fault list, the lines' waiting rays and then which lines the round used
-    /// and which its rays still live keep into the readback buffers `serve_faults` reads.
+    /// Records the `requesters` kernel (each listed block's least requester into the fault list,
+    /// its `requested` word cleared), then copies the round's fault list, the lines' waiting rays
+    /// and which lines the round used and which its rays still live keep into the readback
+    /// buffers `serve_faults` reads.
     fn copy_faults(&self, enc: &mut wgpu::CommandEncoder) {
         let Some(dc) = &self.dc else {
             return;
         };
         let (bufs, b) = (&self.dc_bufs, &self.batch);
+        let k = &self.kernels.requesters;
+        k.dispatch(enc, &self.bound.requesters, Dispatch::Direct(1), None);
         let bytes = fault_bytes(self.params.dc_fault_cap);
         enc.copy_buffer_to_buffer(&bufs.faults, 0, &b.fault_readback, 0, bytes);
-        let r = &bufs.requested_readback;
-        enc.copy_buffer_to_buffer(&bufs.requested, 0, r, 0, bufs.requested.size());
         let wait_bytes = 4 * u64::from(dc.policy.lines());
         let r = &b.waiter_readback;
         enc.copy_buffer_to_buffer(&bufs.waiters, 0, r, 0, wait_bytes);
@@ -559,7 +561,11 @@ impl Tracer<'_> {
         if self.dc.is_some() {
             let b = &self.dc_bufs;
             enc.clear_buffer(&b.faults, 0, Some(size_of::<FaultHeader>() as u64));
-            enc.clear_buffer(&b.requested, 0, None);
+            // The `requesters` kernel cleared every listed block's word; only a round that
+            // dropped faults leaves others set, and a set word would never list its block again.
+            if b.requested_dirty.replace(false) {
+                enc.clear_buffer(&b.requested, 0, None);
+            }
             enc.clear_buffer(&b.waiters, 0, None);
             enc.clear_buffer(&b.line_used, 0, None);
         }
@@ -568,8 +574,11 @@ impl Tracer<'_> {
     /// Reads back a round's fault list and its blocks' least requesters (`copy_faults`).
     fn read_faults(&self) -> Result<FaultList> {
         let bytes = self.gpu.map_read(&self.batch.fault_readback)?;
-        let least = self.gpu.map_read(&self.dc_bufs.requested_readback)?;
-        Ok(FaultList::read(&bytes, self.params.dc_fault_cap, &least))
+        let faults = FaultList::read(&bytes, self.params.dc_fault_cap);
+        if faults.header.dropped > 0 {
+            self.dc_bufs.requested_dirty.set(true);
+        }
+        Ok(faults)
     }
 
     /// Serves a round's faults, in the list's order: the cache policy plans the loads, the block
@@ -712,23 +721,19 @@ struct FaultList {
 }
 
 impl FaultList {
-    /// Parses the fault buffer's bytes (`batch::fault_bytes(cap)`: the header, then `cap` block
-    /// words) and takes each listed block's requester from `least` (the `requested` buffer: a
-    /// word per block, the complement of its least requester, 1 for a kernel without rays).
-    fn read(bytes: &[u8], cap: u32, least: &[u8]) -> FaultList {
+    /// Parses the fault buffer's bytes (`batch::fault_bytes(cap)`: the header, `cap` block words,
+    /// then `cap` words of the blocks' least requesters as the `requesters` kernel copied them
+    /// from `requested`: the complement of the requester, 1 for a kernel without rays).
+    fn read(bytes: &[u8], cap: u32) -> FaultList {
         let head = size_of::<FaultHeader>();
         let header: FaultHeader = bytemuck::pod_read_unaligned(&bytes[..head]);
         let n = header.count.min(cap) as usize;
         let blocks: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes[head..][..4 * n]);
-        let requesters = blocks
+        let keys: Vec<u32> =
+            bytemuck::pod_collect_to_vec(&bytes[head + 4 * cap as usize..][..4 * n]);
+        let requesters = keys
             .iter()
-            .map(|&k| {
-                let at = 4 * k as usize;
-                let key = least.get(at..at + 4).map_or(0, |w| {
-                    u32::from_ne_bytes(w.try_into().expect("a word is 4 bytes"))
-                });
-                if key <= 1 { NONE } else { !key }
-            })
+            .map(|&key| if key <= 1 { NONE } else { !key })
             .collect();
         FaultList {
             header,
@@ -944,20 +949,17 @@ mod tests {
 
     #[test]
     fn a_fault_list_reads_its_requesters_and_serves_the_oldest_batch_first() {
-        // Capacity 4, three faults listed; the blocks' least requesters, complemented, per block
-        // (`request` in shaders/shared/dc.wgsl): block 1 by a kernel without rays (1).
+        // Capacity 4, three faults listed, then the listed blocks' least requesters, complemented
+        // (shaders/requesters.wgsl): block 1's a kernel without rays (1).
         let who = |lane: u32, ray: u32| (lane << REQUESTER_LANE_SHIFT) | ray;
         let header = FaultHeader {
             count: 3,
             ..Default::default()
         };
         let mut bytes = bytemuck::bytes_of(&header).to_vec();
-        bytes.extend([2u32, 1, 0, 0].iter().flat_map(|w| w.to_ne_bytes()));
-        let least: Vec<u8> = [0, 1, !who(2, 5), !who(0, (1 << 28) - 1)]
-            .iter()
-            .flat_map(|w: &u32| w.to_ne_bytes())
-            .collect();
-        let mut f = FaultList::read(&bytes, 4, &least);
+        let words = [2u32, 1, 0, 7, !who(2, 5), 1, 0, !who(0, 3)];
+        bytes.extend(words.iter().flat_map(|w| w.to_ne_bytes()));
+        let mut f = FaultList::read(&bytes, 4);
         assert_eq!(f.blocks, [2, 1, 0]);
         assert_eq!(requester_lane(f.requesters[0]), Some((2, 5)));
         assert_eq!(requester_lane(f.requesters[1]), None);

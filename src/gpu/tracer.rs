@@ -47,8 +47,9 @@ pub const DEFER_SLOTS: u32 = 4;
 /// fetched again for every batch, and a smaller batch's rays share too little of the rest.
 pub(super) const MIN_FIT_PIXELS: u32 = 4096;
 const WORKGROUP: u32 = 64;
-/// The largest number of distinct faults one round records (more fault again next round).
-const FAULT_CAP: u32 = 1 << 16;
+/// The most distinct faults one round records (more fault again next round), and the default
+/// (`Settings::fault_cap`).
+pub const FAULT_CAP: u32 = 1 << 16;
 
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
@@ -69,6 +70,9 @@ pub struct Settings {
     pub overlap_batches: OverlapMode,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
+    /// With a cache: the distinct faults a round records, 1..=`FAULT_CAP` (the rest fault again
+    /// next round). Tests set it small so that rounds drop faults.
+    pub fault_cap: u32,
 }
 
 impl Settings {
@@ -96,6 +100,7 @@ impl Default for Settings {
             faults: FaultMode::Fit,
             overlap_batches: OverlapMode::Auto,
             shading: Shading::default(),
+            fault_cap: FAULT_CAP,
         }
     }
 }
@@ -189,9 +194,12 @@ pub(super) struct DcBuffers {
     pub rows: super::row_table::RowTable,
     pub faults: wgpu::Buffer,
     /// Per block, the complement of its least requester this round (`request` in
-    /// shaders/shared/dc.wgsl), and its read-back.
+    /// shaders/shared/dc.wgsl); the `requesters` kernel moves the listed blocks' words into the
+    /// fault list and clears them.
     pub requested: wgpu::Buffer,
-    pub requested_readback: wgpu::Buffer,
+    /// Whether `requested` may hold words the `requesters` kernel did not clear (blocks requested
+    /// past the fault list's capacity): the next round then starts by clearing it whole.
+    pub requested_dirty: std::cell::Cell<bool>,
     pub waiters: wgpu::Buffer,
     pub line_used: wgpu::Buffer,
 }
@@ -209,6 +217,7 @@ pub(super) struct BoundKernels {
     /// Indexed by the live list the round reads.
     pub trace: [Bound; 2],
     pub args: [Bound; 2],
+    pub requesters: Bound,
     pub shade: Bound,
     pub spawn: Option<Bound>,
     pub gather: Option<Bound>,
@@ -415,6 +424,12 @@ impl<'g> Tracer<'g> {
                 settings.step_budget
             )));
         }
+        if !(1..=FAULT_CAP).contains(&settings.fault_cap) {
+            return Err(Error::Invalid(format!(
+                "fault cap {} is out of range 1..={FAULT_CAP}",
+                settings.fault_cap
+            )));
+        }
         let format = model.format;
         let attrs = model.attrs;
         let blocks = model.node_blocks + model.tri_blocks + attrs.blocks;
@@ -475,7 +490,7 @@ impl<'g> Tracer<'g> {
                     rows: super::row_table::RowTable::placeholder(gpu),
                     faults: p(),
                     requested: p(),
-                    requested_readback: p(),
+                    requested_dirty: false.into(),
                     waiters: p(),
                     line_used: p(),
                 };
@@ -500,7 +515,7 @@ impl<'g> Tracer<'g> {
                 };
                 params.dc_cache_row = policy.cache_row();
                 params.dc_root_row = d.ranks.root_row(blocks);
-                params.dc_fault_cap = FAULT_CAP;
+                params.dc_fault_cap = settings.fault_cap;
                 // Until a frame shows its blocks, set aside only when the cache holds every
                 // borrowed block.
                 let fits = d.lines >= blocks - resident;
@@ -509,7 +524,7 @@ impl<'g> Tracer<'g> {
                     rows: super::row_table::RowTable::new(gpu, policy.block_rows())?,
                     faults: gpu.buffer(
                         "faults",
-                        fault_bytes(FAULT_CAP),
+                        fault_bytes(settings.fault_cap),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
                     requested: gpu.buffer(
@@ -517,11 +532,7 @@ impl<'g> Tracer<'g> {
                         4 * u64::from(blocks),
                         U::STORAGE | U::COPY_SRC | U::COPY_DST,
                     ),
-                    requested_readback: gpu.buffer(
-                        "requested readback",
-                        4 * u64::from(blocks),
-                        U::MAP_READ | U::COPY_DST,
-                    ),
+                    requested_dirty: true.into(),
                     waiters: gpu.buffer(
                         "waiters",
                         4 * u64::from(d.lines),
@@ -557,7 +568,7 @@ impl<'g> Tracer<'g> {
             stack_size,
             settings.max_batch_rays,
             lines,
-            FAULT_CAP,
+            settings.fault_cap,
             colored,
         )?;
         let mut tracer = Tracer {
@@ -615,7 +626,7 @@ impl<'g> Tracer<'g> {
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         for l in 1..=count {
             let s = self.params.stack_size;
-            let batch = Batch::new(gpu, s, max, lines, FAULT_CAP, colored)?;
+            let batch = Batch::new(gpu, s, max, lines, self.settings.fault_cap, colored)?;
             batch.commit(&mut enc);
             let params_buf = gpu.buffer(
                 "params",
@@ -679,6 +690,7 @@ impl<'g> Tracer<'g> {
             raygen: k.raygen.bind(gpu, with(fill)),
             trace: each(&k.trace),
             args: each(&k.args),
+            requesters: k.requesters.bind(gpu, with(fill)),
             shade: k.shade.bind(gpu, with(fill)),
             spawn: k.spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             gather: k.gather.as_ref().map(|g| g.bind(gpu, with(fill))),
@@ -1146,6 +1158,7 @@ impl BoundKernels {
             raygen: Bound::empty(),
             trace: [Bound::empty(), Bound::empty()],
             args: [Bound::empty(), Bound::empty()],
+            requesters: Bound::empty(),
             shade: Bound::empty(),
             spawn: None,
             gather: None,

@@ -743,3 +743,36 @@ fn fault_rounds_do_not_depend_on_the_driver_s_threads() {
         assert_eq!(one, run("2"), "{replicate}: one thread, then two");
     }
 }
+
+#[test]
+fn rounds_that_drop_faults_finish_with_the_same_image() {
+    // A fault list of three blocks: nearly every round lists more faults than that, drops the
+    // rest, and its rays ask again next round. A block requested past the list is never listed
+    // again unless the next round clears every block's request word (the requesters kernel
+    // clears only the listed ones): the frame would never finish.
+    let gpu = gpu();
+    let (p, basis, reference) = rm_128x96(&gpu);
+    for (size, replicate) in [("1/8", Replicate::Nodes), ("1/2", Replicate::Root)] {
+        let o = DcOptions {
+            ranks: 4,
+            rank: 1,
+            cache: CacheSize::parse(size).unwrap(),
+            map: CacheMap::Lru,
+            replicate,
+        };
+        let s = Settings {
+            fault_cap: 3,
+            ..Settings::default()
+        };
+        let mut t = p.tracer_dc(&gpu, s, &o).unwrap();
+        for frame_no in 0..2 {
+            let what = format!("{size} {replicate:?}, frame {frame_no}");
+            let (frame, _) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+            same_pixels(&reference, &frame, &what);
+            let rounds = t.take_trace().rounds;
+            let dropped = rounds.iter().filter(|r| r.dropped > 0).count();
+            assert!(dropped > 0, "{what}: no round dropped faults");
+            assert!(rounds.iter().all(|r| r.faults.len() <= 3), "{what}");
+        }
+    }
+}
