@@ -126,6 +126,8 @@ impl Tracer<'_> {
         let mut cur = 0usize;
         let mut per_check = if self.dc.is_some() { 1 } else { 2u32 };
         let mut live_rounds = 0u32;
+        // The batch's steps and live rays after the last round: `stalled`.
+        let mut last = (0u32, u32::MAX);
         loop {
             for i in 0..per_check {
                 cur = self.record_round(&mut enc, 0, cur, (i == 0, i + 1 == per_check));
@@ -163,6 +165,11 @@ impl Tracer<'_> {
                     })
                     .collect();
                 faults.order_by(&keys);
+                let moved = (s.steps, r.counter.count) != last;
+                if stalled(r.counter.count, moved, faults.header.count) {
+                    return Err(stall_error(r.counter.count, live_rounds));
+                }
+                last = (s.steps, r.counter.count);
                 let waiters = gpu.map_read(&self.batch.waiter_readback)?;
                 let when = (submitted, waited, gpu_ms);
                 self.serve_faults(&faults, &waiters, r.counter.count, live_rounds, when, stats)?;
@@ -335,6 +342,7 @@ impl Tracer<'_> {
             let mut gpu_ms = None;
             let mut done = Vec::new();
             let mut dispatched = Vec::new();
+            let mut moved = false;
             for &l in &active {
                 let data = gpu.map_read(&self.lane(l).0.readback)?;
                 let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
@@ -351,6 +359,8 @@ impl Tracer<'_> {
                 };
                 dispatched.push((l, traced));
                 run.started.get_or_insert(r.started);
+                moved |= (r.stats.steps, r.counter.count) != (run.steps, run.live);
+                run.steps = r.stats.steps;
                 run.live = r.counter.count;
                 live += run.live;
                 if run.live == 0 {
@@ -361,6 +371,9 @@ impl Tracer<'_> {
             }
             let waited = submitted.elapsed();
             let mut faults = self.read_faults()?;
+            if stalled(live, moved, faults.header.count) {
+                return Err(stall_error(live, round));
+            }
             let waiters = gpu.map_read(&self.batch.waiter_readback)?;
             let used: &[u8] = &waiters[4 * lines as usize..8 * lines as usize];
             used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
@@ -630,18 +643,30 @@ impl Tracer<'_> {
             ..Round::default()
         };
         let bw = self.format.words() as usize;
-        let blocks: Vec<u32> = plan.loads.iter().map(|l| l.block).collect();
+        // In row order, so that loads into adjacent lines go up in one write.
+        let mut loads = plan.loads.clone();
+        loads.sort_unstable_by_key(|l| l.row);
+        let blocks: Vec<u32> = loads.iter().map(|l| l.block).collect();
         let mut data = vec![0u32; blocks.len() * bw];
         let t = Instant::now();
         dc.source.fetch(&blocks, &mut data)?;
         let fetch = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        for (load, words) in plan.loads.iter().zip(data.chunks(bw)) {
-            self.store.write_row(self.gpu, self.format, load.row, words);
+        let mut i = 0;
+        while i < loads.len() {
+            let run = 1 + loads[i + 1..]
+                .iter()
+                .zip(&loads[i..])
+                .take_while(|(next, prev)| next.row == prev.row + 1)
+                .count();
+            let words = &data[i * bw..(i + run) * bw];
+            self.store
+                .write_rows(self.gpu, self.format, loads[i].row, words);
+            i += run;
         }
-        for &(block, row) in &plan.rows {
-            self.dc_bufs.rows.set(self.gpu, block, row);
-        }
+        let mut changed: Vec<u32> = plan.rows.iter().map(|&(block, _)| block).collect();
+        let table = dc.policy.block_rows();
+        self.dc_bufs.rows.update(self.gpu, &mut changed, table);
         let upload = t.elapsed().as_secs_f64();
         let loaded = plan.loads.len() as u32;
         rec.fetched_blocks = loaded;
@@ -773,6 +798,21 @@ fn requester_lane(who: u32) -> Option<(usize, u32)> {
     (who != NONE).then_some(((who >> REQUESTER_LANE_SHIFT) as usize, who & slot_mask))
 }
 
+/// Whether a round left its `live` rays where they were: no ray took a step or ended (`moved`)
+/// and none asked for a block (`listed`, the fault list's count, dropped faults included). Rays
+/// that wait renew their requests every round, so the next round would be the same, and the
+/// frame would never end: an internal error, reported rather than waited on.
+fn stalled(live: u32, moved: bool, listed: u32) -> bool {
+    live > 0 && !moved && listed == 0
+}
+
+fn stall_error(live: u32, round: u32) -> Error {
+    Error::Gpu(format!(
+        "trace round {round}: {live} rays still live, but none moved and none asked for a block \
+         (an internal error: the frame could never end)"
+    ))
+}
+
 /// The next batch starts when every batch in flight is down to this share of its rays (1/16):
 /// the last rounds of a batch carry few rays, each climbing its own chain of absent blocks.
 const TAIL_SHARE: u32 = 16;
@@ -792,6 +832,8 @@ struct LaneRun {
     started: Option<u32>,
     live: u32,
     rounds: u32,
+    /// Its steps so far (`Stats::steps`), to tell a round that moved no ray (`stalled`).
+    steps: u32,
     /// Tiles a batch of the rectangle takes where no fault density is known.
     per_batch: u32,
     /// The blocks its rays listed (each once), and per tile how many a ray of the tile listed
@@ -820,6 +862,7 @@ impl LaneRun {
             started: None,
             live: 0,
             rounds: 0,
+            steps: 0,
             per_batch: tiles,
             seen: HashSet::new(),
             tile_faults: Vec::new(),
@@ -938,6 +981,15 @@ mod tests {
         assert!(!few_left_waiting(50, 100, false));
         assert!(!few_left_waiting(51, 100, true));
         assert!(!few_left_waiting(1, 100, false));
+    }
+
+    #[test]
+    fn a_round_that_moved_no_ray_and_listed_no_block_is_a_stall() {
+        assert!(stalled(5, false, 0));
+        // Rays moved, or asked for blocks (served next round), or none is left.
+        assert!(!stalled(5, true, 0));
+        assert!(!stalled(5, false, 1));
+        assert!(!stalled(0, false, 0));
     }
 
     #[test]

@@ -53,9 +53,17 @@ impl RowTable {
         RowTable { texture, view }
     }
 
-    /// Sets block `block`'s row (takes effect for the next submitted dispatch).
-    pub fn set(&self, gpu: &Gpu, block: u32, row: u32) {
-        self.write(gpu, (block % WIDTH, block / WIDTH), 1, 1, &[row]);
+    /// Writes the entries of `changed` blocks (any order, repeats allowed) from `rows`, the
+    /// host's copy of the whole table (`CachePolicy::block_rows`); takes effect for the next
+    /// submitted dispatch. Blocks of a texel row closer than `MERGE_GAP` go in one write with the
+    /// entries between them: a round changes thousands of entries (a load and an eviction each),
+    /// and one write per entry cost more than the blocks' own uploads.
+    pub fn update(&self, gpu: &Gpu, changed: &mut [u32], rows: &[u32]) {
+        for (first, last) in runs(changed) {
+            let (x, y) = (first % WIDTH, first / WIDTH);
+            let n = last - first + 1;
+            self.write(gpu, (x, y), n, 1, &rows[first as usize..=last as usize]);
+        }
     }
 
     fn write(&self, gpu: &Gpu, (x, y): (u32, u32), width: u32, height: u32, data: &[u32]) {
@@ -82,5 +90,45 @@ impl RowTable {
 
     pub fn binding(&self) -> wgpu::BindingResource<'_> {
         wgpu::BindingResource::TextureView(&self.view)
+    }
+}
+
+/// Entries written with the ones between them rather than apart (`RowTable::update`): 4 KiB,
+/// about what a write call costs besides its bytes.
+const MERGE_GAP: u32 = 1024;
+
+/// The changed blocks (sorted here) as inclusive runs `(first, last)`, each within one texel row,
+/// merging blocks less than `MERGE_GAP` apart.
+fn runs(changed: &mut [u32]) -> Vec<(u32, u32)> {
+    changed.sort_unstable();
+    let mut out: Vec<(u32, u32)> = Vec::new();
+    for &b in changed.iter() {
+        match out.last_mut() {
+            Some((first, last)) if b / WIDTH == *first / WIDTH && b - *last <= MERGE_GAP => {
+                *last = b;
+            }
+            _ => out.push((b, b)),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn changed_entries_merge_into_runs_within_a_texel_row() {
+        // 5..=9 and 9 + MERGE_GAP merge; the next is one too far; a texel row ends a run.
+        let far = 9 + 2 * MERGE_GAP + 1;
+        let mut changed = [9, 5, 5, 9 + MERGE_GAP, far, 2 * WIDTH - 1, 2 * WIDTH, 7];
+        let want = [
+            (5, 9 + MERGE_GAP),
+            (far, far),
+            (2 * WIDTH - 1, 2 * WIDTH - 1),
+            (2 * WIDTH, 2 * WIDTH),
+        ];
+        assert_eq!(runs(&mut changed), want);
+        assert!(runs(&mut []).is_empty());
     }
 }

@@ -204,15 +204,24 @@ impl BlockStore {
         }
     }
 
-    /// Replaces the block in `row` (a cache line) between dispatches.
-    pub fn write_row(&self, gpu: &Gpu, format: Format, row: u32, words: &[u32]) {
+    /// Replaces the blocks in consecutive rows from `first` (cache lines) between dispatches:
+    /// `words` holds whole blocks. One write a layer: a write call costs about what 4 KiB of
+    /// copying does, and a round loads thousands of blocks, many into adjacent lines.
+    pub fn write_rows(&self, gpu: &Gpu, format: Format, first: u32, words: &[u32]) {
         match self {
             BlockStore::Texture { parts, shape } => {
-                write_texture_rows(gpu, parts, *shape, format, row, words)
+                let (per_layer, bw) = (shape.rows_per_layer, format.words() as usize);
+                let (mut row, mut rest) = (first, words);
+                while !rest.is_empty() {
+                    let n = (rest.len() / bw).min((per_layer - row % per_layer) as usize);
+                    let (now, later) = rest.split_at(n * bw);
+                    write_texture_rows(gpu, parts, *shape, format, row, now);
+                    (row, rest) = (row + n as u32, later);
+                }
             }
             BlockStore::Buffer { buffer, .. } => gpu.queue.write_buffer(
                 buffer,
-                u64::from(row) * u64::from(format.block_bytes),
+                u64::from(first) * u64::from(format.block_bytes),
                 bytemuck::cast_slice(words),
             ),
         }
