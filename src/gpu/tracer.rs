@@ -455,6 +455,12 @@ impl<'g> Tracer<'g> {
         constants.extend(store.constants());
         let slots = if dc.is_some() { DEFER_SLOTS } else { 0 };
         constants.push(("DEFER_SLOTS", f64::from(slots)));
+        // The mapping's code alone in the kernels (`cache_line` in shaders/shared/dc.wgsl).
+        let map = dc.as_ref().map_or(1.0, |d| match d.map {
+            CacheMap::Ize => 0.0,
+            CacheMap::Demarle | CacheMap::Lru => 1.0,
+        });
+        constants.push(("DC_MAP", map));
         constants.push(("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH)));
         let colored = attrs.words > 0;
         constants.push(("COLORED", if colored { 1.0 } else { 0.0 }));
