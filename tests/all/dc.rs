@@ -776,3 +776,35 @@ fn rounds_that_drop_faults_finish_with_the_same_image() {
         }
     }
 }
+
+#[test]
+fn every_listed_fault_counts_the_ray_that_waits_for_it() {
+    // The ray that lists a block adds itself to its line's waiters on the GPU (`cache_line` in
+    // shaders/shared/dc.wgsl, built for the mapping: DC_MAP), and the host reads the count at
+    // its own `dc::cache_line` of the block: each mapping's kernel must compute the host's line.
+    let gpu = gpu();
+    let (p, basis, _) = rm_128x96(&gpu);
+    for map in [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru] {
+        let o = DcOptions {
+            ranks: 4,
+            rank: 1,
+            cache: CacheSize::parse("1/8").unwrap(),
+            map,
+            replicate: Replicate::Root,
+        };
+        let mut t = p.tracer_dc(&gpu, Settings::default(), &o).unwrap();
+        t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+        let rounds = t.take_trace().rounds;
+        let faults: Vec<_> = rounds.iter().flat_map(|r| &r.faults).collect();
+        assert!(faults.len() > 10, "{map:?}: {} faults", faults.len());
+        let unwaited: Vec<u32> = faults
+            .iter()
+            .filter(|f| f.waiting == 0)
+            .map(|f| f.block)
+            .collect();
+        assert!(
+            unwaited.is_empty(),
+            "{map:?}: no waiter counted for blocks {unwaited:?}"
+        );
+    }
+}
