@@ -70,6 +70,11 @@ fn entry_block(e: vec4<u32>) -> u32 {
     return select(tri_loc(e.x).x, node_loc(e.x).x, e.y == 0u);
 }
 
+// Node visits, node-block entries and triangle-block entries (Stats) are counted only in
+// kernels built with BLOCK_COUNTS (Settings::block_counts, for the benchmarks' block figures):
+// in the loop they cost lavapipe 4% of a 1/8-cache frame's trace time.
+override BLOCK_COUNTS: bool = false;
+
 // Each invocation's counts for Stats: (steps, triangle tests, node visits, block entries) at
 // [lid] and (triangle block entries, suspended, cache hits, cache misses) at [WORKGROUP + lid],
 // summed by the first invocation after append_live's barrier. A plain store per invocation:
@@ -299,9 +304,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 let tc = texel(row, t0 + 2u);
                 let td = texel(row, t0 + 3u);
                 if node {
-                    visits += 1u;
-                    entries += u32(k != last_block);
-                    last_block = k;
+                    if BLOCK_COUNTS {
+                        visits += 1u;
+                        entries += u32(k != last_block);
+                        last_block = k;
+                    }
                     let n = node_of(ta, tb, tc, td);
                     let step = node_step(n);
                     // Inner children are adjacent from child_base, leaves' triangles from tri_base,
@@ -359,8 +366,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     // a resumed ray never needs the first block again (with one cache line it would
                     // evict the second).
                     tests += 1u;
-                    tri_entries += u32(k != last_tri_block);
-                    last_tri_block = k;
+                    if BLOCK_COUNTS {
+                        tri_entries += u32(k != last_tri_block);
+                        last_tri_block = k;
+                    }
                     let tri = tri_of(ta, tb, tc, tt.y);
                     var th = NO_HIT;
                     if cur.x != r.skip {

@@ -40,10 +40,11 @@ pub struct FrameStats {
     pub fault_rounds: u32,
     /// Rounds in which more than one batch was in flight (`Settings::overlap_batches`).
     pub shared_rounds: u32,
-    /// Inner-node visits and node-block entries (a visit in another block than the previous).
+    /// Inner-node visits and node-block entries (a visit in another block than the previous);
+    /// 0 unless the tracer counts them (`Settings::block_counts`).
     pub node_visits: u64,
     pub block_entries: u64,
-    /// Triangle reads from another triangle block than the ray's previous one.
+    /// Triangle reads from another triangle block than the ray's previous one (as above).
     pub tri_block_entries: u64,
     /// Samples per pixel traced; secondary rays spawned; rays that entered traversal (primary
     /// rays culled by the model's box and rays not needed do not).

@@ -73,6 +73,11 @@ pub struct Settings {
     /// With a cache: the distinct faults a round records, 1..=`FAULT_CAP` (the rest fault again
     /// next round). Tests set it small so that rounds drop faults.
     pub fault_cap: u32,
+    /// Count node visits and node- and triangle-block entries in every trace round
+    /// (`FrameStats::node_visits` and the two after it; 0 without). Off by default: the counts
+    /// cost the trace loop time (`BLOCK_COUNTS` in shaders/trace.wgsl), and the benchmarks take
+    /// them from a frame of their own (`Tracer::set_block_counts`).
+    pub block_counts: bool,
 }
 
 impl Settings {
@@ -101,6 +106,7 @@ impl Default for Settings {
             overlap_batches: OverlapMode::Auto,
             shading: Shading::default(),
             fault_cap: FAULT_CAP,
+            block_counts: false,
         }
     }
 }
@@ -309,6 +315,11 @@ pub struct Tracer<'g> {
     pub(super) several_batches: bool,
 }
 
+/// The trace kernel's `BLOCK_COUNTS` constant.
+fn block_counts_constant(on: bool) -> f64 {
+    if on { 1.0 } else { 0.0 }
+}
+
 /// Set-aside slots a ray may use in a frame (`Params::dc_defer`). Only when the frame's blocks fit
 /// the cache: a ray that goes on past an absent block also faults on blocks a nearer hit would
 /// have culled, and where the cache is short those extra fetches evict blocks other rays need
@@ -464,6 +475,7 @@ impl<'g> Tracer<'g> {
         constants.push(("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH)));
         let colored = attrs.words > 0;
         constants.push(("COLORED", if colored { 1.0 } else { 0.0 }));
+        constants.push(("BLOCK_COUNTS", block_counts_constant(settings.block_counts)));
         let mode = settings.shading.mode;
         let kernels = Kernels::new(gpu, store.module(), &constants, mode, colored);
         let meshes = model.meshes.infos();
@@ -713,19 +725,39 @@ impl<'g> Tracer<'g> {
     /// Changes the shading settings; the pipelines are rebuilt when the mode changes.
     pub fn set_shading(&mut self, shading: Shading) -> Result<()> {
         shading.validate()?;
-        if shading.mode != self.settings.shading.mode {
-            let st = self.store.module();
-            let colored = self.kernels.albedo.is_some();
-            self.kernels = Kernels::new(self.gpu, st, &self.constants, shading.mode, colored);
-            self.bound = self.bind_kernels();
-            for l in 1..=self.spares.len() {
-                self.swap_lanes(l);
-                self.bound = self.bind_kernels();
-                self.swap_lanes(l);
-            }
-        }
+        let rebuild = shading.mode != self.settings.shading.mode;
         self.settings.shading = shading;
+        if rebuild {
+            self.rebuild_kernels();
+        }
         Ok(())
+    }
+
+    /// Turns the block counts of every following frame on or off (`Settings::block_counts`);
+    /// the kernels are rebuilt when it changes.
+    pub fn set_block_counts(&mut self, on: bool) {
+        if on != self.settings.block_counts {
+            self.settings.block_counts = on;
+            for c in self.constants.iter_mut().filter(|c| c.0 == "BLOCK_COUNTS") {
+                c.1 = block_counts_constant(on);
+            }
+            self.rebuild_kernels();
+        }
+    }
+
+    /// Builds the kernels for the settings' shading mode and `constants`, and binds them in every
+    /// lane.
+    fn rebuild_kernels(&mut self) {
+        let st = self.store.module();
+        let colored = self.kernels.albedo.is_some();
+        let mode = self.settings.shading.mode;
+        self.kernels = Kernels::new(self.gpu, st, &self.constants, mode, colored);
+        self.bound = self.bind_kernels();
+        for l in 1..=self.spares.len() {
+            self.swap_lanes(l);
+            self.bound = self.bind_kernels();
+            self.swap_lanes(l);
+        }
     }
 
     /// Entries of a ray's traversal stack (without the set-aside slots).

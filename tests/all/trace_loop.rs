@@ -4,7 +4,7 @@
 use crate::common::*;
 use dcrt::gpu::layout::status;
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
+use dcrt::gpu::tracer::{FrameStats, MAX_STEP_BUDGET, Settings};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
 
@@ -254,4 +254,47 @@ fn rectangles_tile_the_image_exactly() {
             .render_rect(&basis, [0.0; 3], outside, &mut stats)
             .is_err()
     );
+}
+
+/// Node visits and block entries are counted only when asked (`Settings::block_counts`, and
+/// `Tracer::set_block_counts` on a tracer already built): the same image and steps either way,
+/// the counts 0 without, and with them every visit's count consistent.
+#[test]
+fn block_entries_are_counted_only_when_asked() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let (a, plain) = render(&gpu, &prepared, &camera, 96, 96, Settings::default());
+    let counting = Settings {
+        block_counts: true,
+        ..Settings::default()
+    };
+    let (b, counted) = render(&gpu, &prepared, &camera, 96, 96, counting);
+    let counts = |s: &FrameStats| (s.node_visits, s.block_entries, s.tri_block_entries);
+    assert_eq!(counts(&plain), (0, 0, 0), "no counts unless asked");
+    let (visits, entries, tri_entries) = counts(&counted);
+    assert!(
+        entries > 0 && visits >= entries,
+        "{visits} visits, {entries} block entries"
+    );
+    assert!(
+        tri_entries > 0 && tri_entries <= counted.tri_tests,
+        "{tri_entries} triangle block entries, {} tests",
+        counted.tri_tests
+    );
+    assert_eq!(plain.steps, counted.steps, "the same traversal");
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
+    }
+    let mut tracer = prepared.tracer(&gpu, Settings::default()).unwrap();
+    tracer.set_block_counts(true);
+    let (_, switched) = tracer
+        .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
+        .unwrap();
+    assert_eq!(counts(&switched), counts(&counted));
+    tracer.set_block_counts(false);
+    let (_, off) = tracer
+        .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
+        .unwrap();
+    assert_eq!(counts(&off), (0, 0, 0));
 }

@@ -102,6 +102,10 @@ struct GpuArgs {
     /// current one still wait for blocks, so that the two share fault rounds.
     #[arg(long, value_enum, default_value_t = OverlapMode::Auto)]
     overlap_batches: OverlapMode,
+    /// Count node visits and node- and triangle-block entries in every frame (`--stats`
+    /// `node_visits`, `block_entries`, `tri_block_entries`; 0 without). The counts slow the trace.
+    #[arg(long)]
+    block_counts: bool,
 }
 
 /// Shading options; each overrides the scene's `[render]` value when given.
@@ -522,6 +526,7 @@ fn settings(g: &GpuArgs) -> Settings {
         store: g.store,
         faults: g.faults,
         overlap_batches: g.overlap_batches,
+        block_counts: g.block_counts,
         ..Settings::default()
     }
 }

@@ -1,7 +1,7 @@
 //! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
 //! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
 
-use super::{Table, emit, frame_stats};
+use super::{Table, block_count_frame, emit, frame_stats};
 use crate::{BenchArgs, settings};
 use anyhow::{Result, bail};
 use dcrt::blocks::Format;
@@ -135,6 +135,7 @@ pub fn run(
             }
         };
         let fault_rounds = sum(&|s| f64::from(s.fault_rounds));
+        let counted = block_count_frame(&mut tracer, camera, size, scene.background)?;
         rows.push(DcRow {
             config: match cfg {
                 None => "replicated".into(),
@@ -171,8 +172,7 @@ pub fn run(
                     1.0
                 }
             },
-            nodes_per_block_entry: sum(&|s| s.node_visits as f64)
-                / sum(&|s| s.block_entries as f64).max(1.0),
+            nodes_per_block_entry: counted.node_visits as f64 / counted.block_entries.max(1) as f64,
             resident_mib: mib(resident),
             cache_mib: mib(cache),
             lanes_mib: mib(tracer.batch_bytes()),

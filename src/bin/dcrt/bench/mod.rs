@@ -31,7 +31,7 @@ use dcrt::gpu::tracer::{FrameStats, Tracer};
 use dcrt::render::frames::{FramePlan, Role, View, run_images};
 use dcrt::scene::MAX_GENERATED_TRIANGLES;
 use dcrt::scene::generate::Generator;
-use dcrt::scene::{Scene, check_image_size};
+use dcrt::scene::{Camera, Scene, check_image_size};
 
 pub fn bench(a: BenchArgs) -> Result<()> {
     if let Some(seconds) = a.fuzz_loaders {
@@ -166,6 +166,21 @@ pub fn frame_stats(
         },
     )?;
     Ok(all)
+}
+
+/// One more frame from `camera`, with the tracer counting node visits and block entries
+/// (`Settings::block_counts`), which the timed frames leave out: they cost the trace loop time.
+pub fn block_count_frame(
+    tracer: &mut Tracer<'_>,
+    camera: Camera,
+    size: (u32, u32),
+    background: [f32; 3],
+) -> Result<FrameStats> {
+    let was = tracer.settings().block_counts;
+    tracer.set_block_counts(true);
+    let counted = frame_stats(tracer, View::Fixed(camera), 1, size, background);
+    tracer.set_block_counts(was);
+    Ok(counted?.remove(0))
 }
 
 /// The generated models of `--shading`, and of `--cluster` without a scene: the open rm model

@@ -2,7 +2,7 @@
 //! mode, with the traversal's counts (steps, node visits per node block, blocks entered), and
 //! optionally a native peer tracing the same camera rays in the same run (`--peer embree`).
 
-use super::{Peer, Table, emit, frame_stats, median};
+use super::{Peer, Table, block_count_frame, emit, frame_stats, median};
 use crate::{BenchArgs, settings};
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
@@ -290,6 +290,7 @@ fn measure(
     let runs = frame_stats(tracer, View::Fixed(camera), frames, size, background)?;
     let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
     let s = runs.last().cloned().unwrap_or_default();
+    let counted = block_count_frame(tracer, camera, size, background)?;
     let med = median(&mut times);
     let rays = s.rays + s.secondary_rays;
     let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
@@ -306,9 +307,9 @@ fn measure(
         mrays_per_s: rays as f64 / (med * 1e-3) / 1e6,
         steps_per_ray: per_ray(s.steps),
         tri_tests_per_ray: per_ray(s.tri_tests),
-        nodes_per_node_block: s.node_visits as f64 / s.block_entries.max(1) as f64,
-        node_blocks_per_ray: per_ray(s.block_entries),
-        tri_blocks_per_ray: per_ray(s.tri_block_entries),
+        nodes_per_node_block: counted.node_visits as f64 / counted.block_entries.max(1) as f64,
+        node_blocks_per_ray: per_ray(counted.block_entries),
+        tri_blocks_per_ray: per_ray(counted.tri_block_entries),
         trace_share: s.trace_seconds / s.seconds,
         shade_share: s.shade_seconds / s.seconds,
     })
