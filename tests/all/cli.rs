@@ -291,3 +291,80 @@ fn paraview_camera_files() {
     );
     assert!(!out.exists());
 }
+
+/// `bench --dc --json` on a small model: every row keeps its keys, the replicated row is the
+/// reference of the ratios, each repeat runs every configuration, and the block counts come from
+/// the extra counting frame (the timed frames leave them out).
+#[test]
+fn dc_bench_reports_ratios_over_its_repeats() {
+    let out = dcrt(&[
+        &"bench",
+        &"--dc",
+        &"--generator",
+        &"rm",
+        &"--triangles",
+        &"8000",
+        &"--width",
+        &"48",
+        &"--height",
+        &"40",
+        &"--frames",
+        &"2",
+        &"--caches",
+        &"1/8",
+        &"--cache-maps",
+        &"lru,ize",
+        &"--replicate-blocks",
+        &"nodes",
+        &"--repeats",
+        &"2",
+        &"--json",
+        &"-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["repeats"], 2);
+    let rows = report["rows"].as_array().unwrap();
+    let configs: Vec<(&str, &str)> = rows
+        .iter()
+        .map(|r| {
+            let map = r["cache_map"].as_str().unwrap_or("-");
+            (r["config"].as_str().unwrap(), map)
+        })
+        .collect();
+    assert_eq!(configs, [("replicated", "-"), ("dc", "lru"), ("dc", "ize")]);
+    let f = |r: &serde_json::Value, k: &str| {
+        r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
+    };
+    for r in rows {
+        for k in [
+            "frame_ms",
+            "first_frame_ms",
+            "fetched_bytes_per_frame",
+            "rounds_per_frame",
+        ] {
+            assert!(f(r, k) >= 0.0, "{k}: {r}");
+        }
+        let (lo, mid, hi) = (
+            f(r, "frame_over_replicated_min"),
+            f(r, "frame_over_replicated"),
+            f(r, "frame_over_replicated_max"),
+        );
+        assert!(lo > 0.0 && lo <= mid && mid <= hi, "{r}");
+        assert!(
+            f(r, "nodes_per_block_entry") >= 1.0,
+            "counted in the extra frame: {r}"
+        );
+    }
+    assert_eq!(f(&rows[0], "frame_over_replicated_min"), 1.0);
+    assert_eq!(f(&rows[0], "frame_over_replicated_max"), 1.0);
+    for r in &rows[1..] {
+        assert!(f(r, "distinct_blocks_per_frame") > 0.0, "{r}");
+        assert!(f(r, "fetches_per_distinct_block") >= 0.0, "{r}");
+        assert!(
+            f(r, "fault_rounds_per_frame") > 0.0,
+            "a 1/8 cache faults: {r}"
+        );
+    }
+}

@@ -409,6 +409,19 @@ struct BenchArgs {
     /// the first).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "root")]
     replicate_blocks: Vec<Replicate>,
+    /// Cache mappings for --dc.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "ize,demarle,lru"
+    )]
+    cache_maps: Vec<CacheMap>,
+    /// --dc: run the replicated configuration and then every cache configuration this many
+    /// times in turn; frame times and ratios to replicated are medians over the repeats, each
+    /// ratio against the replicated frame of its own repeat (the host's speed drifts).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    repeats: u32,
     /// Cluster sweep: mpirun jobs of this binary with --ranks ranks, replicated and with the
     /// distributed cache (--cluster-caches), beside one process; block fetch costs on every
     /// --transports; then the display benchmark for each --copy-threads. Runs the rm and the

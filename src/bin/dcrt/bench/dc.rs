@@ -1,12 +1,13 @@
 //! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
 //! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
 
-use super::{Table, block_count_frame, emit, frame_stats};
+use super::{Table, block_count_frame, emit, frame_stats, median};
 use crate::{BenchArgs, settings};
 use anyhow::{Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::Gpu;
+use dcrt::gpu::tracer::FrameStats;
 use dcrt::progress::Progress;
 use dcrt::render::frames::View;
 use dcrt::render::{DcOptions, Prepared, mib};
@@ -20,9 +21,15 @@ struct DcRow {
     /// What every rank holds besides its own blocks (`--replicate-blocks`).
     replicate: Option<Replicate>,
     cache_lines: u32,
-    /// Mean over the frames after the first (warm cache), and the first (cold).
+    /// Mean over the frames after the first (warm cache), and the first (cold); with
+    /// `--repeats`, medians over the repeats.
     frame_ms: f64,
     first_frame_ms: f64,
+    /// The warm frame over the replicated one of the same repeat (median over the repeats), and
+    /// the least and largest such ratio.
+    frame_over_replicated: f64,
+    frame_over_replicated_min: f64,
+    frame_over_replicated_max: f64,
     fetched_bytes_per_frame: f64,
     /// Distinct borrowed blocks the warm frames looked up, and blocks fetched per such block
     /// (above 1: blocks fetched more than once in a frame).
@@ -65,6 +72,7 @@ struct DcReport {
     ranks: u32,
     rank: u32,
     frames: u32,
+    repeats: u32,
     /// `--faults`: when rays went on past a fault.
     faults: dcrt::gpu::tracer::FaultMode,
     /// `--overlap-batches`: when a batch's last rounds shared rounds with the next batch.
@@ -88,9 +96,8 @@ pub fn run(
     let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
     let blocks = &prepared.blocks;
     let mut configs: Vec<(Option<DcOptions>, Option<String>)> = vec![(None, None)];
-    const MAPS: [CacheMap; 3] = [CacheMap::Ize, CacheMap::Demarle, CacheMap::Lru];
     for &replicate in &a.replicate_blocks {
-        for map in MAPS {
+        for &map in &a.cache_maps {
             for c in &a.caches {
                 let o = DcOptions {
                     ranks: a.virtual_ranks,
@@ -103,21 +110,48 @@ pub fn run(
             }
         }
     }
-    let mut rows = Vec::new();
-    let bar = Progress { quiet: a.quiet }.bar(configs.len() as u64, "cache configurations");
-    for (cfg, cache_name) in &configs {
-        bar.inc(1);
-        let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
-        let size = (a.width, a.height);
-        let all = frame_stats(
-            &mut tracer,
-            View::Orbit(camera),
-            a.frames,
-            size,
-            scene.background,
-        )?;
-        let first_ms = all[0].seconds * 1e3;
+    // Per configuration (the replicated one first), the frames of each repeat; the block counts
+    // of its first run (`block_count_frame`) and its lanes' bytes.
+    let size = (a.width, a.height);
+    let mut runs: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
+    let mut counted = vec![FrameStats::default(); configs.len()];
+    let mut lanes = vec![0; configs.len()];
+    let total = configs.len() as u64 * u64::from(a.repeats);
+    let bar = Progress { quiet: a.quiet }.bar(total, "cache configurations");
+    for repeat in 0..a.repeats {
+        for (i, (cfg, _)) in configs.iter().enumerate() {
+            bar.inc(1);
+            let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
+            let view = View::Orbit(camera);
+            runs[i].push(frame_stats(
+                &mut tracer,
+                view,
+                a.frames,
+                size,
+                scene.background,
+            )?);
+            if repeat == 0 {
+                counted[i] = block_count_frame(&mut tracer, camera, size, scene.background)?;
+            }
+            lanes[i] = tracer.batch_bytes();
+        }
+    }
+    let warm_ms = |all: &[FrameStats]| {
         let warm = &all[1..];
+        warm.iter().map(|s| s.seconds).sum::<f64>() / warm.len() as f64 * 1e3
+    };
+    let replicated_ms: Vec<f64> = runs[0].iter().map(|r| warm_ms(r)).collect();
+    let mut rows = Vec::new();
+    for (i, (cfg, cache_name)) in configs.iter().enumerate() {
+        let mut frame: Vec<f64> = runs[i].iter().map(|r| warm_ms(r)).collect();
+        let mut cold: Vec<f64> = runs[i].iter().map(|r| r[0].seconds * 1e3).collect();
+        let mut ratios: Vec<f64> = frame
+            .iter()
+            .zip(&replicated_ms)
+            .map(|(f, r)| f / r)
+            .collect();
+        // The counts of every repeat's warm frames together (the same frames each time).
+        let warm: Vec<FrameStats> = runs[i].iter().flat_map(|r| r[1..].to_vec()).collect();
         let n = warm.len() as f64;
         let sum = |f: &dyn Fn(&dcrt::gpu::tracer::FrameStats) -> f64| -> f64 {
             warm.iter().map(f).sum::<f64>()
@@ -135,7 +169,7 @@ pub fn run(
             }
         };
         let fault_rounds = sum(&|s| f64::from(s.fault_rounds));
-        let counted = block_count_frame(&mut tracer, camera, size, scene.background)?;
+        let counted = &counted[i];
         rows.push(DcRow {
             config: match cfg {
                 None => "replicated".into(),
@@ -145,8 +179,11 @@ pub fn run(
             cache_map: cfg.map(|o| o.map),
             replicate: cfg.map(|o| o.replicate),
             cache_lines: lines,
-            frame_ms: secs / n * 1e3,
-            first_frame_ms: first_ms,
+            frame_ms: median(&mut frame),
+            first_frame_ms: median(&mut cold),
+            frame_over_replicated: median(&mut ratios),
+            frame_over_replicated_min: ratios[0],
+            frame_over_replicated_max: ratios[ratios.len() - 1],
             fetched_bytes_per_frame: sum(&|s| s.fetched_bytes as f64) / n,
             distinct_blocks_per_frame: sum(&|s| s.distinct_blocks as f64) / n,
             fetches_per_distinct_block: {
@@ -175,7 +212,7 @@ pub fn run(
             nodes_per_block_entry: counted.node_visits as f64 / counted.block_entries.max(1) as f64,
             resident_mib: mib(resident),
             cache_mib: mib(cache),
-            lanes_mib: mib(tracer.batch_bytes()),
+            lanes_mib: mib(lanes[i]),
             gpu_share: sum(&|s| s.gpu_seconds) / secs,
             sync_share: sum(&|s| {
                 s.trace_seconds - s.gpu_seconds - s.fetch_seconds - s.upload_seconds
@@ -228,6 +265,7 @@ pub fn run(
         ranks: a.virtual_ranks,
         rank: a.rank,
         frames: a.frames,
+        repeats: a.repeats,
         faults: a.gpu.faults,
         overlap_batches: a.gpu.overlap_batches,
         model_mib: mib(blocks.bytes()),
@@ -241,7 +279,8 @@ fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
-         {} orbit frames (the first, cold, reported apart), --faults {:?}, --overlap-batches {:?}",
+         {} orbit frames (the first, cold, reported apart), {} repeat(s), --faults {:?}, \
+         --overlap-batches {:?}",
         report.scene,
         report.triangles,
         report.model_mib,
@@ -250,6 +289,7 @@ fn print(report: &DcReport) {
         report.rank,
         report.ranks,
         report.frames,
+        report.repeats,
         report.faults,
         report.overlap_batches
     );
@@ -261,6 +301,7 @@ fn print(report: &DcReport) {
         ("lines", 6),
         ("frame ms", 9),
         ("cold ms", 9),
+        ("x repl", 15),
         ("MiB/frame", 10),
         ("distinct", 9),
         ("fetch/d", 7),
@@ -291,6 +332,16 @@ fn print(report: &DcReport) {
             r.cache_lines.to_string(),
             format!("{:.1}", r.frame_ms),
             format!("{:.1}", r.first_frame_ms),
+            if report.repeats > 1 {
+                format!(
+                    "{:.3} {:.2}-{:.2}",
+                    r.frame_over_replicated,
+                    r.frame_over_replicated_min,
+                    r.frame_over_replicated_max
+                )
+            } else {
+                format!("{:.3}", r.frame_over_replicated)
+            },
             format!("{:.2}", r.fetched_bytes_per_frame / 1048576.0),
             format!("{:.0}", r.distinct_blocks_per_frame),
             format!("{:.2}", r.fetches_per_distinct_block),
