@@ -14,6 +14,7 @@
 #import queue
 #import offset
 
+
 @group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 // Per ray `stack_size` entries, each a child as its parent's slot gives it (node `index` when
 // `count` is 0, else `count` triangles from `index`) and its entry distance, packed in 8 bytes
@@ -75,11 +76,12 @@ fn entry_block(e: vec4<u32>) -> u32 {
 // in the loop they cost lavapipe 4% of a 1/8-cache frame's trace time.
 override BLOCK_COUNTS: bool = false;
 
-// Each invocation's counts for Stats: (steps, triangle tests, node visits, block entries) at
-// [lid] and (triangle block entries, suspended, cache hits, cache misses) at [WORKGROUP + lid],
-// summed by the first invocation after append_live's barrier. A plain store per invocation:
-// an atomic add per invocation and counter is a locked operation per lane on a CPU driver, and
-// nine of them cost lavapipe about 13% of a replicated frame.
+// Each subgroup's counts for Stats, summed over its invocations by subgroupAdd: (steps, triangle
+// tests, node visits, block entries) at [subgroup] and (triangle block entries, suspended, cache
+// hits, cache misses) at [WORKGROUP + subgroup], summed by the first invocation after
+// append_live's barrier. An atomic add per invocation and counter is a locked operation per lane
+// on a CPU driver (nine of them cost lavapipe about 13% of a replicated frame), and summing a
+// store per invocation took 5% of a 1/8-cache frame: each of its loads is a loop over the lanes.
 var<workgroup> wg_counts: array<vec4<u32>, 128>;
 
 // An entry's distance bits for a child the ray misses: above every hit's (a non-negative f32's
@@ -168,7 +170,9 @@ fn top_at(t: Top, i: u32) -> vec2<u32> {
 }
 
 @compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32,
+        @builtin(subgroup_id) sg: u32, @builtin(num_subgroups) subgroups: u32,
+        @builtin(subgroup_invocation_id) sgi: u32) {
     var again = false;
     var ray_index = 0u;
     var parked = false;
@@ -505,14 +509,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         counts = vec4(iters, tests, visits, entries);
         more_counts = vec4(tri_entries, u32(suspended), dc_hits, dc_misses);
     }
-    wg_counts[lid] = counts;
-    wg_counts[WORKGROUP + lid] = more_counts;
+    // Every invocation gets here: the subgroup is whole.
+    let sub_counts = subgroupAdd(counts);
+    let sub_more = subgroupAdd(more_counts);
+    if sgi == 0u {
+        wg_counts[sg] = sub_counts;
+        wg_counts[WORKGROUP + sg] = sub_more;
+    }
     // The barrier in append_live also orders the counts before they are read.
     append_live(again, lid, ray_index);
     if lid == 0u {
         var a = vec4(0u);
         var b = vec4(0u);
-        for (var i = 0u; i < WORKGROUP; i++) {
+        for (var i = 0u; i < subgroups; i++) {
             a += wg_counts[i];
             b += wg_counts[WORKGROUP + i];
         }

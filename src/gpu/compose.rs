@@ -156,9 +156,10 @@ pub fn validate(c: &Composed, kernel: &str) -> Result<naga::Module, String> {
         }
         msg
     })?;
+    // Subgroup operations: the device is opened with them (gpu::Gpu::new).
     naga::valid::Validator::new(
         naga::valid::ValidationFlags::all(),
-        naga::valid::Capabilities::default(),
+        naga::valid::Capabilities::default() | naga::valid::Capabilities::SUBGROUP,
     )
     .validate(&module)
     .map_err(|e| {

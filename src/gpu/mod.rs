@@ -58,10 +58,13 @@ pub fn adapters() -> Vec<wgpu::Adapter> {
     list
 }
 
+/// What the kernels need: compute shaders, indirect dispatch, and subgroup operations (the trace
+/// kernel sums its statistics with them).
 fn is_compute(a: &wgpu::Adapter) -> bool {
     a.get_downlevel_capabilities()
         .flags
         .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS | wgpu::DownlevelFlags::INDIRECT_EXECUTION)
+        && a.features().contains(wgpu::Features::SUBGROUP)
 }
 
 fn rank(t: wgpu::DeviceType) -> u8 {
@@ -109,12 +112,13 @@ impl Gpu {
         };
         if !is_compute(&adapter) {
             return Err(Error::Gpu(format!(
-                "adapter '{}' lacks compute shaders or indirect dispatch",
+                "adapter '{}' lacks compute shaders, indirect dispatch or subgroup operations",
                 adapter.get_info().name
             )));
         }
         let limits = adapter.limits();
-        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let features =
+            (adapter.features() & wgpu::Features::TIMESTAMP_QUERY) | wgpu::Features::SUBGROUP;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("dcrt"),
             required_features: features,
