@@ -77,8 +77,8 @@ fn entry_block(e: vec4<u32>) -> u32 {
 override BLOCK_COUNTS: bool = false;
 
 // Each subgroup's counts for Stats, summed over its invocations by subgroupAdd: (steps, triangle
-// tests, node visits, block entries) at [subgroup] and (triangle block entries, suspended, cache
-// hits, cache misses) at [WORKGROUP + subgroup], summed by the first invocation after
+// tests, node visits, block entries) at [subgroup] and (triangle block entries, suspended and
+// overflowed, cache hits, cache misses) at [WORKGROUP + subgroup], summed by the first invocation after
 // append_live's barrier. An atomic add per invocation and counter is a locked operation per lane
 // on a CPU driver (nine of them cost lavapipe about 13% of a replicated frame), and summing a
 // store per invocation took 5% of a 1/8-cache frame: each of its loads is a loop over the lanes.
@@ -503,11 +503,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             rays[ray_index].g[6] = w.g[6];
         }
         again = r.status == LIVE;
-        if r.status == OVERFLOW {
-            atomicAdd(&stats.overflows, 1u);
-        }
         counts = vec4(iters, tests, visits, entries);
-        more_counts = vec4(tri_entries, u32(suspended), dc_hits, dc_misses);
+        // Suspended in the low 16 bits, overflowed above them (a workgroup sums at most 64 of
+        // each): an atomic per invocation would cost every lane's loop in every dispatch.
+        let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 16u);
+        more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
     }
     // Every invocation gets here: the subgroup is whole.
     let sub_counts = subgroupAdd(counts);
@@ -530,7 +530,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&stats.node_visits, a.z);
         atomicAdd(&stats.block_entries, a.w);
         atomicAdd(&stats.tri_block_entries, b.x);
-        atomicAdd(&stats.suspended, b.y);
+        atomicAdd(&stats.suspended, b.y & 0xffffu);
+        atomicAdd(&stats.overflows, b.y >> 16u);
         if DC {
             // Every lookup of a borrowed block is a hit or a miss.
             atomicAdd(&stats.lookups, b.z + b.w);
