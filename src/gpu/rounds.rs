@@ -99,8 +99,12 @@ impl Tracer<'_> {
         let k = &self.kernels;
         let o = 1 - cur;
         let ind = Dispatch::Indirect(&b.counters[cur]);
-        k.trace
-            .dispatch(enc, &bound.trace[cur], ind, self.stamps(first, false));
+        // A frame that sets nothing aside runs the kernel without the set-aside code.
+        let (trace, trace_bound) = match (&k.trace_suspending, &bound.trace_suspending) {
+            (Some(t), Some(b)) if self.params.dc_defer == 0 => (t, &b[cur]),
+            _ => (&k.trace, &bound.trace[cur]),
+        };
+        trace.dispatch(enc, trace_bound, ind, self.stamps(first, false));
         let groups = Dispatch::Direct(1);
         k.args
             .dispatch(enc, &bound.args[o], groups, self.stamps(false, last));

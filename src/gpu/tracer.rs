@@ -222,6 +222,7 @@ pub(super) struct BoundKernels {
     pub raygen: Bound,
     /// Indexed by the live list the round reads.
     pub trace: [Bound; 2],
+    pub trace_suspending: Option<[Bound; 2]>,
     pub args: [Bound; 2],
     pub requesters: Bound,
     pub shade: Bound,
@@ -707,6 +708,7 @@ impl<'g> Tracer<'g> {
         BoundKernels {
             raygen: k.raygen.bind(gpu, with(fill)),
             trace: each(&k.trace),
+            trace_suspending: k.trace_suspending.as_ref().map(each),
             args: each(&k.args),
             requesters: k.requesters.bind(gpu, with(fill)),
             shade: k.shade.bind(gpu, with(fill)),
@@ -1195,6 +1197,7 @@ impl BoundKernels {
         BoundKernels {
             raygen: Bound::empty(),
             trace: [Bound::empty(), Bound::empty()],
+            trace_suspending: None,
             args: [Bound::empty(), Bound::empty()],
             requesters: Bound::empty(),
             shade: Bound::empty(),
