@@ -61,10 +61,38 @@ pub fn adapters() -> Vec<wgpu::Adapter> {
 /// What the kernels need: compute shaders, indirect dispatch, and subgroup operations (the trace
 /// kernel sums its statistics with them).
 fn is_compute(a: &wgpu::Adapter) -> bool {
-    a.get_downlevel_capabilities()
-        .flags
-        .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS | wgpu::DownlevelFlags::INDIRECT_EXECUTION)
-        && a.features().contains(wgpu::Features::SUBGROUP)
+    lacks(a).is_empty()
+}
+
+/// What of the kernels' needs adapter `a` lacks.
+fn lacks(a: &wgpu::Adapter) -> Vec<&'static str> {
+    let flags = a.get_downlevel_capabilities().flags;
+    let mut out = Vec::new();
+    if !flags.contains(wgpu::DownlevelFlags::COMPUTE_SHADERS) {
+        out.push("compute shaders");
+    }
+    if !flags.contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION) {
+        out.push("indirect dispatch");
+    }
+    if !a.features().contains(wgpu::Features::SUBGROUP) {
+        out.push("subgroup operations");
+    }
+    out
+}
+
+/// `name (lacks x, y)` for each adapter in `list`, or "none".
+fn describe_needs(list: &[wgpu::Adapter]) -> String {
+    if list.is_empty() {
+        return "none".into();
+    }
+    let each: Vec<String> = list
+        .iter()
+        .map(|a| match lacks(a).as_slice() {
+            [] => a.get_info().name,
+            l => format!("{} (lacks {})", a.get_info().name, l.join(", ")),
+        })
+        .collect();
+    each.join("; ")
 }
 
 fn rank(t: wgpu::DeviceType) -> u8 {
@@ -102,18 +130,22 @@ impl Gpu {
                         ))
                     })?
             }
-            None => list.into_iter().find(is_compute).ok_or_else(|| {
-                Error::Gpu(
-                    "no GPU adapter with compute shaders found (install mesa-vulkan-drivers for \
-                     lavapipe)"
-                        .into(),
-                )
-            })?,
+            None => match list.iter().position(is_compute) {
+                Some(i) => list.into_iter().nth(i).expect("found above"),
+                None => {
+                    return Err(Error::Gpu(format!(
+                        "no GPU adapter with compute shaders, indirect dispatch and subgroup \
+                         operations found (install mesa-vulkan-drivers for lavapipe); found: {}",
+                        describe_needs(&list)
+                    )));
+                }
+            },
         };
         if !is_compute(&adapter) {
             return Err(Error::Gpu(format!(
-                "adapter '{}' lacks compute shaders, indirect dispatch or subgroup operations",
-                adapter.get_info().name
+                "adapter '{}' lacks {}, which dcrt's kernels need",
+                adapter.get_info().name,
+                lacks(&adapter).join(", ")
             )));
         }
         let limits = adapter.limits();

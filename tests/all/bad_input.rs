@@ -685,3 +685,43 @@ fn colour_by_mistakes() {
         fails(&d, &s, &[], &needles);
     }
 }
+
+/// No adapter with what the kernels need (here: only the GL backend searched, which offers none
+/// on this machine): an error naming the needs and the adapters found, a non-zero exit, no
+/// output. `--adapter` with a name nothing matches lists the adapters there are.
+#[test]
+fn no_usable_adapter_is_a_clear_error() {
+    let d = TempDir::new("adapter");
+    let s = d.write(
+        "scene.toml",
+        format!("{CAMERA}[[mesh]]\nfile = \"t.ply\"\n"),
+    );
+    d.write(
+        "t.ply",
+        format!("{PLY_HEADER}0 0 0\n1 0 0\n0 0 1\n3 0 1 2\n"),
+    );
+    let out = d.path("out.png");
+    let r = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"))
+        .args([
+            "render".as_ref(),
+            s.as_os_str(),
+            "-o".as_ref(),
+            out.as_os_str(),
+        ])
+        .env("WGPU_BACKEND", "gl")
+        .env_remove("WGPU_ADAPTER_NAME")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    for n in ["compute shaders", "subgroup operations", "found: "] {
+        assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
+    }
+    assert!(!exists(&out), "no output is written on failure");
+    fails(
+        &d,
+        &s,
+        &["--adapter", "no-such-adapter"],
+        &["no adapter named like 'no-such-adapter'", "available: "],
+    );
+}
