@@ -29,7 +29,7 @@ struct Stats {
     tri_tests: atomic<u32>,
     overflows: atomic<u32>,
     suspended: atomic<u32>,
-    lookups: atomic<u32>,
+    unused0: u32,
     hits: atomic<u32>,
     misses: atomic<u32>,
     // Node visits, and how often a visit's node block differs from the previous visit's: the
@@ -76,13 +76,14 @@ fn entry_block(e: vec4<u32>) -> u32 {
 // in the loop they cost lavapipe 4% of a 1/8-cache frame's trace time.
 override BLOCK_COUNTS: bool = false;
 
-// Each subgroup's counts for Stats, summed over its invocations by subgroupAdd: (steps, triangle
-// tests, node visits, block entries) at [subgroup] and (triangle block entries, suspended and
-// overflowed, cache hits, cache misses) at [WORKGROUP + subgroup], summed by the first invocation after
-// append_live's barrier. An atomic add per invocation and counter is a locked operation per lane
-// on a CPU driver (nine of them cost lavapipe about 13% of a replicated frame), and summing a
-// store per invocation took 5% of a 1/8-cache frame: each of its loads is a loop over the lanes.
-var<workgroup> wg_counts: array<vec4<u32>, 128>;
+// Each subgroup's counts for Stats are summed over its invocations by subgroupAdd and added by
+// its first invocation: an atomic add per invocation is a locked operation per lane on a CPU
+// driver (nine of them cost lavapipe about 13% of a replicated frame). A CPU driver runs every
+// atomic site as a loop over the lanes in every subgroup, taken or not, so there are few: the
+// block counts only in kernels that count them, the cache's only with a cache, and `lookups` is
+// not counted (the host adds hits and misses). Summing the subgroups' counts in workgroup memory first cost
+// more than it saved (each load a loop over the lanes, in every subgroup): 3% of a 1/8-cache
+// frame's instructions.
 
 // An entry's distance bits for a child the ray misses: above every hit's (a non-negative f32's
 // bits order as the f32 does).
@@ -171,13 +172,15 @@ fn top_at(t: Top, i: u32) -> vec2<u32> {
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32,
-        @builtin(subgroup_id) sg: u32, @builtin(num_subgroups) subgroups: u32,
         @builtin(subgroup_invocation_id) sgi: u32) {
     var again = false;
     var ray_index = 0u;
     var parked = false;
     var counts = vec4(0u);
     var more_counts = vec4(0u);
+    // The block this invocation's ray waits for, requested at the kernel's end: one request site
+    // (its atomics are a loop over the lanes on a CPU driver, taken or not).
+    var ask = NONE;
     if gid.x < counter_in[0] {
         ray_index = live_in[gid.x];
         // A ray whose block has not arrived only renews its request: no state is read or
@@ -185,7 +188,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if DC {
             let wb = rays[ray_index].g[3].y;
             if wb != NONE && block_row(wb) == NONE {
-                request(wb, requester(ray_index));
+                ask = wb;
                 parked = true;
                 again = true;
             }
@@ -459,7 +462,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 }
             }
             if wait_fault {
-                request(r.wait_block, requester(ray_index));
+                ask = r.wait_block;
             }
             keep_line(tri_row);
         }
@@ -504,39 +507,31 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         again = r.status == LIVE;
         counts = vec4(iters, tests, visits, entries);
-        // Suspended in the low 16 bits, overflowed above them (a workgroup sums at most 64 of
-        // each): an atomic per invocation would cost every lane's loop in every dispatch.
+        // Suspended in the low 16 bits, overflowed above them (a subgroup sums at most 128 of
+        // each): one sum instead of two.
         let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 16u);
         more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
+    }
+    if DC && ask != NONE {
+        request(ask, requester(ray_index));
     }
     // Every invocation gets here: the subgroup is whole.
     let sub_counts = subgroupAdd(counts);
     let sub_more = subgroupAdd(more_counts);
     if sgi == 0u {
-        wg_counts[sg] = sub_counts;
-        wg_counts[WORKGROUP + sg] = sub_more;
-    }
-    // The barrier in append_live also orders the counts before they are read.
-    append_live(again, lid, ray_index);
-    if lid == 0u {
-        var a = vec4(0u);
-        var b = vec4(0u);
-        for (var i = 0u; i < subgroups; i++) {
-            a += wg_counts[i];
-            b += wg_counts[WORKGROUP + i];
+        atomicAdd(&stats.steps, sub_counts.x);
+        atomicAdd(&stats.tri_tests, sub_counts.y);
+        atomicAdd(&stats.overflows, sub_more.y >> 16u);
+        if BLOCK_COUNTS {
+            atomicAdd(&stats.node_visits, sub_counts.z);
+            atomicAdd(&stats.block_entries, sub_counts.w);
+            atomicAdd(&stats.tri_block_entries, sub_more.x);
         }
-        atomicAdd(&stats.steps, a.x);
-        atomicAdd(&stats.tri_tests, a.y);
-        atomicAdd(&stats.node_visits, a.z);
-        atomicAdd(&stats.block_entries, a.w);
-        atomicAdd(&stats.tri_block_entries, b.x);
-        atomicAdd(&stats.suspended, b.y & 0xffffu);
-        atomicAdd(&stats.overflows, b.y >> 16u);
         if DC {
-            // Every lookup of a borrowed block is a hit or a miss.
-            atomicAdd(&stats.lookups, b.z + b.w);
-            atomicAdd(&stats.hits, b.z);
-            atomicAdd(&stats.misses, b.w);
+            atomicAdd(&stats.suspended, sub_more.y & 0xffffu);
+            atomicAdd(&stats.hits, sub_more.z);
+            atomicAdd(&stats.misses, sub_more.w);
         }
     }
+    append_live(again, lid, ray_index);
 }

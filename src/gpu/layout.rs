@@ -184,8 +184,9 @@ pub struct Stats {
     pub overflows: u32,
     /// Rays that stopped on a fault this round.
     pub suspended: u32,
-    /// Cache consultations (blocks neither owned nor the root), and how they went.
-    pub lookups: u32,
+    /// Where the cache's lookups were counted; the host adds hits and misses instead.
+    pub unused0: u32,
+    /// Cache consultations (blocks neither owned nor the root): how they went.
     pub hits: u32,
     pub misses: u32,
     /// Inner-node visits, and how many of them moved to another node block than the previous.

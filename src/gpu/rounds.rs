@@ -691,7 +691,7 @@ impl Tracer<'_> {
 fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
     stats.steps += u64::from(s.steps);
     stats.tri_tests += u64::from(s.tri_tests);
-    stats.lookups += u64::from(s.lookups);
+    stats.lookups += u64::from(s.hits) + u64::from(s.misses);
     stats.hits += u64::from(s.hits);
     stats.misses += u64::from(s.misses);
     stats.node_visits += u64::from(s.node_visits);

@@ -250,7 +250,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<Counter>());
     let w = same_layout!(Stats, "Stats", {
         "steps" => steps, "tri_tests" => tri_tests, "overflows" => overflows,
-        "suspended" => suspended, "lookups" => lookups, "hits" => hits, "misses" => misses,
+        "suspended" => suspended, "unused0" => unused0, "hits" => hits, "misses" => misses,
         "node_visits" => node_visits, "block_entries" => block_entries,
         "tri_block_entries" => tri_block_entries, "unused1" => unused, "unused2" => unused + 4,
     });
