@@ -87,18 +87,23 @@ fn sweep(g: Generator) {
                     // Suspending at every fault, a ray visits the blocks it would replicated, so
                     // the same view again, every block cached, fetches nothing and looks up the
                     // same blocks: counted by the host from the lines the GPU used and the
-                    // faults, not only from what was fetched.
+                    // faults, not only from what was fetched. With every node block replicated
+                    // the trace kernel marks the lines it used when a ray stops, not as it goes.
                     let never = Settings {
                         faults: FaultMode::Never,
                         ..Settings::default()
                     };
-                    let mut t = p.tracer_dc(&gpu, never, &o).unwrap();
-                    let (_, cold) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
-                    let (again, warm) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
-                    same_pixels(&reference, &again, &what);
-                    assert_eq!(warm.fetched_blocks, 0, "{what}");
-                    assert!(warm.distinct_blocks > 0, "{what}");
-                    assert_eq!(warm.distinct_blocks, cold.distinct_blocks, "{what}");
+                    for replicate in [Replicate::Root, Replicate::Nodes] {
+                        let o = DcOptions { replicate, ..o };
+                        let mut t = p.tracer_dc(&gpu, never, &o).unwrap();
+                        let (_, cold) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                        let (again, warm) = t.render(&basis, [0.1, 0.2, 0.3]).unwrap();
+                        let what = format!("{what} {replicate:?}");
+                        same_pixels(&reference, &again, &what);
+                        assert_eq!(warm.fetched_blocks, 0, "{what}");
+                        assert!(warm.distinct_blocks > 0, "{what}");
+                        assert_eq!(warm.distinct_blocks, cold.distinct_blocks, "{what}");
+                    }
                 }
                 let cache = t.cache().map(|(_, lines, map)| (lines, map));
                 trace.summary = summarize(&stats, cache, 0, Role::one_process(&t));
