@@ -25,8 +25,8 @@ struct DcRow {
     /// `--repeats`, medians over the repeats.
     frame_ms: f64,
     first_frame_ms: f64,
-    /// The warm frame over the replicated one of the same repeat (median over the repeats), and
-    /// the least and largest such ratio.
+    /// The warm frame over the replicated model's same frames, each rendered just before it
+    /// (median over the repeats), and the least and largest such ratio.
     frame_over_replicated: f64,
     frame_over_replicated_min: f64,
     frame_over_replicated_max: f64,
@@ -111,43 +111,62 @@ pub fn run(
         }
     }
     // Per configuration (the replicated one first), the frames of each repeat; the block counts
-    // of its first run (`block_count_frame`) and its lanes' bytes.
+    // of its first run (`block_count_frame`) and its lanes' bytes. Each configuration's frame
+    // is rendered right after the replicated model's same frame (`paired`), so that a ratio
+    // compares frames seconds apart: over a run, this host's speed drifts by more than most
+    // changes (README, Benchmarks). The replicated row holds every replicated orbit rendered.
     let size = (a.width, a.height);
     let mut runs: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
+    let mut paired: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
     let mut counted = vec![FrameStats::default(); configs.len()];
     let mut lanes = vec![0; configs.len()];
-    let total = configs.len() as u64 * u64::from(a.repeats);
-    let bar = Progress { quiet: a.quiet }.bar(total, "cache configurations");
+    let total = configs.len().max(2) as u64 - 1;
+    let bar = Progress { quiet: a.quiet }.bar(total * u64::from(a.repeats), "cache configurations");
+    let view = View::Orbit(camera);
+    let render = |tracer: &mut dcrt::gpu::tracer::Tracer<'_>, f: u32| -> Result<FrameStats> {
+        let at = View::Fixed(view.camera(f, a.frames));
+        Ok(frame_stats(tracer, at, 1, size, scene.background)?.remove(0))
+    };
     for repeat in 0..a.repeats {
-        for (i, (cfg, _)) in configs.iter().enumerate() {
+        let mut replicated = prepared.tracer_with(gpu, settings(&a.gpu), None)?;
+        if repeat == 0 {
+            counted[0] = block_count_frame(&mut replicated, camera, size, scene.background)?;
+        }
+        if configs.len() == 1 {
+            bar.inc(1);
+            runs[0].push(frame_stats(&mut replicated, view, a.frames, size, scene.background)?);
+        }
+        for (i, (cfg, _)) in configs.iter().enumerate().skip(1) {
             bar.inc(1);
             let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
-            let view = View::Orbit(camera);
-            runs[i].push(frame_stats(
-                &mut tracer,
-                view,
-                a.frames,
-                size,
-                scene.background,
-            )?);
+            let (mut with, mut own) = (Vec::new(), Vec::new());
+            for f in 0..a.frames {
+                with.push(render(&mut replicated, f)?);
+                own.push(render(&mut tracer, f)?);
+            }
+            runs[0].push(with.clone());
+            paired[i].push(with);
+            runs[i].push(own);
             if repeat == 0 {
                 counted[i] = block_count_frame(&mut tracer, camera, size, scene.background)?;
             }
             lanes[i] = tracer.batch_bytes();
         }
+        lanes[0] = replicated.batch_bytes();
     }
     let warm_ms = |all: &[FrameStats]| {
         let warm = &all[1..];
         warm.iter().map(|s| s.seconds).sum::<f64>() / warm.len() as f64 * 1e3
     };
-    let replicated_ms: Vec<f64> = runs[0].iter().map(|r| warm_ms(r)).collect();
     let mut rows = Vec::new();
     for (i, (cfg, cache_name)) in configs.iter().enumerate() {
         let mut frame: Vec<f64> = runs[i].iter().map(|r| warm_ms(r)).collect();
         let mut cold: Vec<f64> = runs[i].iter().map(|r| r[0].seconds * 1e3).collect();
+        // Over the replicated frames rendered beside them (the replicated row: 1).
+        let beside = if i == 0 { &runs[0] } else { &paired[i] };
         let mut ratios: Vec<f64> = frame
             .iter()
-            .zip(&replicated_ms)
+            .zip(beside.iter().map(|r| warm_ms(r)))
             .map(|(f, r)| f / r)
             .collect();
         // The counts of every repeat's warm frames together (the same frames each time).
