@@ -292,6 +292,52 @@ fn paraview_camera_files() {
     assert!(!out.exists());
 }
 
+/// `bench --dc` renders each configuration's frames beside replicated frames of its own: its
+/// ratio is its warm frame over those (`replicated_frame_ms`), not over an orbit rendered before.
+#[test]
+fn dc_bench_pairs_each_configuration_with_replicated_frames() {
+    let out = dcrt(&[
+        &"bench",
+        &"--dc",
+        &"--generator",
+        &"rm",
+        &"--triangles",
+        &"8000",
+        &"--width",
+        &"48",
+        &"--height",
+        &"40",
+        &"--frames",
+        &"2",
+        &"--caches",
+        &"1/8,1/2",
+        &"--cache-maps",
+        &"lru",
+        &"--json",
+        &"-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    let f = |r: &serde_json::Value, k: &str| {
+        r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
+    };
+    for r in &rows[1..] {
+        let ratio = f(r, "frame_ms") / f(r, "replicated_frame_ms");
+        assert!(
+            (f(r, "frame_over_replicated") - ratio).abs() <= 1e-9 * ratio,
+            "{r}"
+        );
+    }
+    // Two renders of the replicated orbit, one beside each cache.
+    assert_ne!(
+        f(&rows[1], "replicated_frame_ms"),
+        f(&rows[2], "replicated_frame_ms")
+    );
+}
+
 /// `bench --dc --json` on a small model: every row keeps its keys, the replicated row is the
 /// reference of the ratios, each repeat runs every configuration, and the block counts come from
 /// the extra counting frame (the timed frames leave them out).
@@ -359,6 +405,7 @@ fn dc_bench_reports_ratios_over_its_repeats() {
     }
     assert_eq!(f(&rows[0], "frame_over_replicated_min"), 1.0);
     assert_eq!(f(&rows[0], "frame_over_replicated_max"), 1.0);
+    assert_eq!(f(&rows[0], "replicated_frame_ms"), f(&rows[0], "frame_ms"));
     for r in &rows[1..] {
         assert!(f(r, "distinct_blocks_per_frame") > 0.0, "{r}");
         assert!(f(r, "fetches_per_distinct_block") >= 0.0, "{r}");

@@ -25,8 +25,11 @@ struct DcRow {
     /// `--repeats`, medians over the repeats.
     frame_ms: f64,
     first_frame_ms: f64,
-    /// The warm frame over the replicated model's same frames, each rendered just before it
-    /// (median over the repeats), and the least and largest such ratio.
+    /// The replicated model's warm frame rendered beside this configuration's (each of its
+    /// frames just before the same frame here; median over the repeats).
+    replicated_frame_ms: f64,
+    /// The warm frame over the replicated frames rendered beside it (median over the repeats),
+    /// and the least and largest such ratio.
     frame_over_replicated: f64,
     frame_over_replicated_min: f64,
     frame_over_replicated_max: f64,
@@ -134,7 +137,13 @@ pub fn run(
         }
         if configs.len() == 1 {
             bar.inc(1);
-            runs[0].push(frame_stats(&mut replicated, view, a.frames, size, scene.background)?);
+            runs[0].push(frame_stats(
+                &mut replicated,
+                view,
+                a.frames,
+                size,
+                scene.background,
+            )?);
         }
         for (i, (cfg, _)) in configs.iter().enumerate().skip(1) {
             bar.inc(1);
@@ -164,11 +173,8 @@ pub fn run(
         let mut cold: Vec<f64> = runs[i].iter().map(|r| r[0].seconds * 1e3).collect();
         // Over the replicated frames rendered beside them (the replicated row: 1).
         let beside = if i == 0 { &runs[0] } else { &paired[i] };
-        let mut ratios: Vec<f64> = frame
-            .iter()
-            .zip(beside.iter().map(|r| warm_ms(r)))
-            .map(|(f, r)| f / r)
-            .collect();
+        let mut beside_ms: Vec<f64> = beside.iter().map(|r| warm_ms(r)).collect();
+        let mut ratios: Vec<f64> = frame.iter().zip(&beside_ms).map(|(f, r)| f / r).collect();
         // The counts of every repeat's warm frames together (the same frames each time).
         let warm: Vec<FrameStats> = runs[i].iter().flat_map(|r| r[1..].to_vec()).collect();
         let n = warm.len() as f64;
@@ -199,6 +205,7 @@ pub fn run(
             replicate: cfg.map(|o| o.replicate),
             cache_lines: lines,
             frame_ms: median(&mut frame),
+            replicated_frame_ms: median(&mut beside_ms),
             first_frame_ms: median(&mut cold),
             frame_over_replicated: median(&mut ratios),
             frame_over_replicated_min: ratios[0],
