@@ -292,38 +292,45 @@ fn paraview_camera_files() {
     assert!(!out.exists());
 }
 
+/// `bench --dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
+fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "bench",
+        "--dc",
+        "--generator",
+        "rm",
+        "--triangles",
+        "8000",
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--frames",
+        "2",
+        "--json",
+        "-q",
+    ];
+    args.extend_from_slice(extra);
+    let args: Vec<&dyn AsRef<std::ffi::OsStr>> = args.iter().map(|a| a as _).collect();
+    let out = dcrt(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// A number a `bench --dc` row holds under `k`.
+fn row_num(r: &serde_json::Value, k: &str) -> f64 {
+    r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
+}
+
 /// `bench --dc` renders each configuration's frames beside replicated frames of its own: its
 /// ratio is its warm frame over those (`replicated_frame_ms`), not over an orbit rendered before.
 #[test]
 fn dc_bench_pairs_each_configuration_with_replicated_frames() {
-    let out = dcrt(&[
-        &"bench",
-        &"--dc",
-        &"--generator",
-        &"rm",
-        &"--triangles",
-        &"8000",
-        &"--width",
-        &"48",
-        &"--height",
-        &"40",
-        &"--frames",
-        &"2",
-        &"--caches",
-        &"1/8,1/2",
-        &"--cache-maps",
-        &"lru",
-        &"--json",
-        &"-q",
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let report = small_dc_bench(&["--caches", "1/8,1/2", "--cache-maps", "lru"]);
     let rows = report["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 3);
-    let f = |r: &serde_json::Value, k: &str| {
-        r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
-    };
+    let f = row_num;
     for r in &rows[1..] {
         let ratio = f(r, "frame_ms") / f(r, "replicated_frame_ms");
         assert!(
@@ -343,33 +350,16 @@ fn dc_bench_pairs_each_configuration_with_replicated_frames() {
 /// the extra counting frame (the timed frames leave them out).
 #[test]
 fn dc_bench_reports_ratios_over_its_repeats() {
-    let out = dcrt(&[
-        &"bench",
-        &"--dc",
-        &"--generator",
-        &"rm",
-        &"--triangles",
-        &"8000",
-        &"--width",
-        &"48",
-        &"--height",
-        &"40",
-        &"--frames",
-        &"2",
-        &"--caches",
-        &"1/8",
-        &"--cache-maps",
-        &"lru,ize",
-        &"--replicate-blocks",
-        &"nodes",
-        &"--repeats",
-        &"2",
-        &"--json",
-        &"-q",
+    let report = small_dc_bench(&[
+        "--caches",
+        "1/8",
+        "--cache-maps",
+        "lru,ize",
+        "--replicate-blocks",
+        "nodes",
+        "--repeats",
+        "2",
     ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["repeats"], 2);
     let rows = report["rows"].as_array().unwrap();
     let configs: Vec<(&str, &str)> = rows
@@ -380,9 +370,7 @@ fn dc_bench_reports_ratios_over_its_repeats() {
         })
         .collect();
     assert_eq!(configs, [("replicated", "-"), ("dc", "lru"), ("dc", "ize")]);
-    let f = |r: &serde_json::Value, k: &str| {
-        r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
-    };
+    let f = row_num;
     for r in rows {
         for k in [
             "frame_ms",
