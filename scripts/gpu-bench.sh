@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Primary-ray throughput on a real GPU: prints the adapter, Mrays/s and steps per ray of
-# `dcrt bench` on the rm and assembly generators at 1024x1024, both block stores.
+# Primary-ray throughput on a real GPU: prints the adapter, Mrays/s, steps per ray, nodes per
+# block and the share of busy lanes of `dcrt bench` on the rm and assembly generators at
+# 1024x1024, both block stores.
 #
 #   scripts/gpu-bench.sh [DCRT_BINARY] [extra dcrt bench options...]
 #
@@ -35,7 +36,8 @@ for gen in rm assembly; do
         /"mrays_per_s":/ && store != "" { gsub(/,/, "", $2); m = $2 }
         /"steps_per_ray":/ && store != "" { gsub(/,/, "", $2); s = $2 }
         /"nodes_per_node_block":/ && store != "" { gsub(/,/, "", $2); n = $2 }
+        /"lane_use":/ && store != "" { gsub(/,/, "", $2); l = $2 }
         /"shade_share":/ && store != "" {
-            printf "%-9s %-8s %-5s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block\n", gen, store, mode, m, s, n
+            printf "%-9s %-8s %-5s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block %5.1f%% lanes busy\n", gen, store, mode, m, s, n, 100 * l
         }'
 done

@@ -38,8 +38,11 @@ struct Stats {
     block_entries: atomic<u32>,
     // Triangle reads from another triangle block than the ray's previous one.
     tri_block_entries: atomic<u32>,
-    unused1: u32,
-    unused2: u32,
+    // Per subgroup the most loop iterations any of its invocations ran (the iterations its
+    // lanes ran together), and the subgroup size: steps over their product is the share of
+    // lanes that did work.
+    subgroup_steps: atomic<u32>,
+    subgroup_size: atomic<u32>,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 
@@ -172,7 +175,7 @@ fn top_at(t: Top, i: u32) -> vec2<u32> {
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32,
-        @builtin(subgroup_invocation_id) sgi: u32) {
+        @builtin(subgroup_invocation_id) sgi: u32, @builtin(subgroup_size) sg_size: u32) {
     var again = false;
     var ray_index = 0u;
     var parked = false;
@@ -518,6 +521,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     // Every invocation gets here: the subgroup is whole.
     let sub_counts = subgroupAdd(counts);
     let sub_more = subgroupAdd(more_counts);
+    var sub_steps = 0u;
+    if BLOCK_COUNTS {
+        sub_steps = subgroupMax(counts.x);
+    }
     if sgi == 0u {
         atomicAdd(&stats.steps, sub_counts.x);
         atomicAdd(&stats.tri_tests, sub_counts.y);
@@ -526,6 +533,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             atomicAdd(&stats.node_visits, sub_counts.z);
             atomicAdd(&stats.block_entries, sub_counts.w);
             atomicAdd(&stats.tri_block_entries, sub_more.x);
+            atomicAdd(&stats.subgroup_steps, sub_steps);
+            atomicMax(&stats.subgroup_size, sg_size);
         }
         if DC {
             atomicAdd(&stats.suspended, sub_more.y & 0xffffu);

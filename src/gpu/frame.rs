@@ -46,6 +46,10 @@ pub struct FrameStats {
     pub block_entries: u64,
     /// Triangle reads from another triangle block than the ray's previous one (as above).
     pub tri_block_entries: u64,
+    /// Loop iterations the trace's lanes ran, busy or idle: per subgroup the most iterations
+    /// one of its invocations ran, times the subgroup size (as above). `steps` over it is the
+    /// share of lanes that did work, what sorting rays could at best gain.
+    pub lane_steps: u64,
     /// Samples per pixel traced; secondary rays spawned; rays that entered traversal (primary
     /// rays culled by the model's box and rays not needed do not).
     pub samples: u32,

@@ -194,7 +194,10 @@ pub struct Stats {
     pub block_entries: u32,
     /// Triangle reads from another triangle block than the ray's previous one.
     pub tri_block_entries: u32,
-    pub unused: [u32; 2],
+    /// Summed over subgroups, the most loop iterations one of its invocations ran; and the
+    /// subgroup size (`FrameStats::lane_steps`).
+    pub subgroup_steps: u32,
+    pub subgroup_size: u32,
 }
 const _: () = assert!(std::mem::size_of::<Stats>() == 48);
 

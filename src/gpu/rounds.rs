@@ -697,6 +697,7 @@ fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
     stats.node_visits += u64::from(s.node_visits);
     stats.block_entries += u64::from(s.block_entries);
     stats.tri_block_entries += u64::from(s.tri_block_entries);
+    stats.lane_steps += u64::from(s.subgroup_steps) * u64::from(s.subgroup_size);
     stats.max_live_rounds = stats.max_live_rounds.max(rounds);
 }
 

@@ -292,6 +292,48 @@ fn paraview_camera_files() {
     assert!(!out.exists());
 }
 
+/// `bench --json` keeps the keys scripts read (docs/ARCHITECTURE.md, CLI contract) and adds the
+/// traversal's counts, the lane share among them: steps over the iterations lanes ran, a share.
+#[test]
+fn bench_json_reports_rates_counts_and_lane_share() {
+    let out = dcrt(&[
+        &"bench",
+        &"--generator",
+        &"assembly",
+        &"--triangles",
+        &"8000",
+        &"--width",
+        &"48",
+        &"--height",
+        &"40",
+        &"--runs",
+        &"1",
+        &"--json",
+        &"-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(r["adapter"].is_string(), "{r}");
+    assert_eq!(
+        (r["width"].as_u64(), r["height"].as_u64()),
+        (Some(48), Some(40))
+    );
+    assert!(r["triangles"].as_u64().is_some_and(|t| t > 0), "{r}");
+    for k in [
+        "bvh_build_ms",
+        "trace_ms_median",
+        "mrays_per_s",
+        "steps_per_ray",
+        "nodes_per_node_block",
+    ] {
+        assert!(row_num(&r, k) > 0.0, "{k}: {r}");
+    }
+    let lanes = row_num(&r, "lane_use");
+    assert!(lanes > 0.0 && lanes < 1.0, "lane_use {lanes}");
+    assert_eq!(row_num(&r["rows"][0], "lane_use"), lanes);
+}
+
 /// `bench --dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
 fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
     let mut args = vec![
@@ -318,7 +360,7 @@ fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-/// A number a `bench --dc` row holds under `k`.
+/// A number a `bench` report or row holds under `k`.
 fn row_num(r: &serde_json::Value, k: &str) -> f64 {
     r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
 }

@@ -252,7 +252,8 @@ fn host_structs_match_naga_layouts() {
         "steps" => steps, "tri_tests" => tri_tests, "overflows" => overflows,
         "suspended" => suspended, "unused0" => unused0, "hits" => hits, "misses" => misses,
         "node_visits" => node_visits, "block_entries" => block_entries,
-        "tri_block_entries" => tri_block_entries, "unused1" => unused, "unused2" => unused + 4,
+        "tri_block_entries" => tri_block_entries, "subgroup_steps" => subgroup_steps,
+        "subgroup_size" => subgroup_size,
     });
     sized(w, size_of::<Stats>());
     // The fault list follows the header.

@@ -256,9 +256,10 @@ fn rectangles_tile_the_image_exactly() {
     );
 }
 
-/// Node visits and block entries are counted only when asked (`Settings::block_counts`, and
-/// `Tracer::set_block_counts` on a tracer already built): the same image and steps either way,
-/// the counts 0 without, and with them every visit's count consistent.
+/// Node visits, block entries and lane steps are counted only when asked
+/// (`Settings::block_counts`, and `Tracer::set_block_counts` on a tracer already built): the
+/// same image and steps either way, the counts 0 without, and with them every visit's count
+/// consistent.
 #[test]
 fn block_entries_are_counted_only_when_asked() {
     let gpu = gpu();
@@ -272,6 +273,18 @@ fn block_entries_are_counted_only_when_asked() {
     let (b, counted) = render(&gpu, &prepared, &camera, 96, 96, counting);
     let counts = |s: &FrameStats| (s.node_visits, s.block_entries, s.tri_block_entries);
     assert_eq!(counts(&plain), (0, 0, 0), "no counts unless asked");
+    assert_eq!(plain.lane_steps, 0);
+    // A subgroup's lanes run as many iterations as its longest ray: at least every ray's own,
+    // at most all of its rays' together on every lane.
+    let (lanes, steps) = (counted.lane_steps, counted.steps);
+    let (min_size, max_size) = (gpu.info.subgroup_min_size, gpu.info.subgroup_max_size);
+    assert!(
+        steps > 0 && steps < lanes && lanes <= steps * u64::from(max_size),
+        "{steps} steps, {lanes} lane steps, subgroups of {min_size}..={max_size}"
+    );
+    if min_size == max_size {
+        assert_eq!(lanes % u64::from(min_size), 0, "{lanes} lane steps");
+    }
     let (visits, entries, tri_entries) = counts(&counted);
     assert!(
         entries > 0 && visits >= entries,

@@ -43,6 +43,9 @@ struct BenchRow {
     nodes_per_node_block: f64,
     node_blocks_per_ray: f64,
     tri_blocks_per_ray: f64,
+    /// Steps over the loop iterations the trace's lanes ran, busy or idle (`FrameStats::
+    /// lane_steps`, from the block-count frame): the share of lanes doing work.
+    lane_use: f64,
     /// Of the last run: share of the frame in raygen + trace rounds, and in shade + readback.
     trace_share: f64,
     shade_share: f64,
@@ -84,6 +87,7 @@ struct BenchReport {
     nodes_per_node_block: f64,
     node_blocks_per_ray: f64,
     tri_blocks_per_ray: f64,
+    lane_use: f64,
     peer: Option<PeerReport>,
     rows: Vec<BenchRow>,
 }
@@ -203,6 +207,7 @@ pub fn run(
         nodes_per_node_block: main_row.nodes_per_node_block,
         node_blocks_per_ray: main_row.node_blocks_per_ray,
         tri_blocks_per_ray: main_row.tri_blocks_per_ray,
+        lane_use: main_row.lane_use,
         peer,
         rows: Vec::new(),
     };
@@ -269,6 +274,7 @@ pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
         nodes_per_node_block: main.nodes_per_node_block,
         node_blocks_per_ray: main.node_blocks_per_ray,
         tri_blocks_per_ray: main.tri_blocks_per_ray,
+        lane_use: main.lane_use,
         peer: None,
         rows: Vec::new(),
     };
@@ -310,6 +316,7 @@ fn measure(
         nodes_per_node_block: counted.node_visits as f64 / counted.block_entries.max(1) as f64,
         node_blocks_per_ray: per_ray(counted.block_entries),
         tri_blocks_per_ray: per_ray(counted.tri_block_entries),
+        lane_use: counted.steps as f64 / counted.lane_steps.max(1) as f64,
         trace_share: s.trace_seconds / s.seconds,
         shade_share: s.shade_seconds / s.seconds,
     })
@@ -415,6 +422,7 @@ fn print(report: &BenchReport) {
         ("nodes/blk", 9),
         ("nblk/ray", 8),
         ("tblk/ray", 8),
+        ("lanes%", 6),
         ("trace%", 6),
         ("shade%", 6),
     ]);
@@ -434,6 +442,7 @@ fn print(report: &BenchReport) {
             format!("{:.2}", r.nodes_per_node_block),
             format!("{:.2}", r.node_blocks_per_ray),
             format!("{:.2}", r.tri_blocks_per_ray),
+            format!("{:.0}", r.lane_use * 100.0),
             format!("{:.0}", r.trace_share * 100.0),
             format!("{:.0}", r.shade_share * 100.0),
         ]);
