@@ -1,8 +1,8 @@
 //! Which pixel a ray slot of a batch is, as `tile_pixel` in `shaders/shared/tiles.wgsl`: batches
 //! are runs of 8x8 tiles over the rectangle being rendered, in bands `band` tiles wide, row by row
-//! within a band, the bands left to right and every other one bottom to top. Where a batch would
-//! be a thin stripe across the rectangle, bands make it a compact patch, so its rays touch fewer
-//! blocks (docs/ARCHITECTURE.md, The distributed cache).
+//! within a band, the bands left to right and every other one bottom to top, and within a tile in
+//! Z order (`z_x`). Where a batch would be a thin stripe across the rectangle, bands make it a
+//! compact patch, so its rays touch fewer blocks (docs/ARCHITECTURE.md, The distributed cache).
 
 /// Tile edge in pixels (`TILE`).
 pub const TILE: u32 = 8;
@@ -62,9 +62,14 @@ pub fn tile_pixel(first_tile: u32, t: Tiling, i: u32) -> (u32, u32) {
     let row = within / width;
     let ty = if b % 2 == 1 { t.tiles_y - 1 - row } else { row };
     (
-        (b * band + within % width) * TILE + local % TILE,
-        ty * TILE + local / TILE,
+        (b * band + within % width) * TILE + z_x(local),
+        ty * TILE + z_x(local >> 1),
     )
+}
+
+/// `z_x`: the x of Z-order index `l` in an 8x8 tile, its bits 0, 2 and 4 (of `l >> 1`, the y).
+pub fn z_x(l: u32) -> u32 {
+    (l & 1) | ((l >> 1) & 2) | ((l >> 2) & 4)
 }
 
 #[cfg(test)]
@@ -95,7 +100,7 @@ mod tests {
         // A rectangle 3 tiles wide, 2 high, in batches of 2 tiles: rows across it.
         let t = covers_once(24, 16, 2);
         assert_eq!(t.band, 3);
-        assert_eq!(tile_pixel(0, t, 9), (1, 1));
+        assert_eq!(tile_pixel(0, t, 9), (1, 2));
         assert_eq!(tile_pixel(4, t, 0), (8, 8));
         for (w, h, per_batch) in [(24, 16, 6), (1024, 1024, 860), (1000, 300, 37), (8, 8, 1)] {
             covers_once(w, h, per_batch);
@@ -104,6 +109,27 @@ mod tests {
         let t = covers_once(320, 80, 20);
         assert_eq!(t.band, 5);
         assert_eq!(tile_pixel(50, t, 0), (40, 72));
+    }
+
+    /// Any 2^k consecutive slots of a tile are a patch: 8 of them 4x2 pixels, 32 of them 8x4.
+    #[test]
+    fn slots_within_a_tile_go_in_z_order() {
+        let t = Tiling::new(8, 8, 1);
+        let patch = |from: u32, n: u32| {
+            let mut p: Vec<(u32, u32)> = (from..from + n).map(|i| tile_pixel(0, t, i)).collect();
+            p.sort_by_key(|&(x, y)| (y, x));
+            p
+        };
+        let rect = |x0: u32, y0: u32, w: u32, h: u32| -> Vec<(u32, u32)> {
+            (y0..y0 + h)
+                .flat_map(|y| (x0..x0 + w).map(move |x| (x, y)))
+                .collect()
+        };
+        assert_eq!(patch(0, 8), rect(0, 0, 4, 2));
+        assert_eq!(patch(8, 8), rect(0, 2, 4, 2));
+        assert_eq!(patch(16, 16), rect(4, 0, 4, 4));
+        assert_eq!(patch(32, 32), rect(0, 4, 8, 4));
+        assert_eq!(patch(0, 4), rect(0, 0, 2, 2));
     }
 
     #[test]
