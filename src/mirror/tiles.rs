@@ -52,8 +52,14 @@ impl Tiling {
 /// `tile_pixel`: the pixel of batch slot `i`, relative to the rectangle's corner, for a batch
 /// starting at tile `first_tile`.
 pub fn tile_pixel(first_tile: u32, t: Tiling, i: u32) -> (u32, u32) {
-    let tile = first_tile + i / (TILE * TILE);
+    let (x, y) = tile_corner(first_tile + i / (TILE * TILE), t);
     let local = i % (TILE * TILE);
+    (x + z_x(local), y + z_x(local >> 1))
+}
+
+/// The top left pixel of tile `tile` (counted over the whole rectangle), relative to the
+/// rectangle's corner: `tile_pixel` of the tile's first slot.
+pub fn tile_corner(tile: u32, t: Tiling) -> (u32, u32) {
     let band = if t.band == 0 { t.tiles_x } else { t.band };
     let b = tile / (band * t.tiles_y);
     let within = tile % (band * t.tiles_y);
@@ -61,10 +67,7 @@ pub fn tile_pixel(first_tile: u32, t: Tiling, i: u32) -> (u32, u32) {
     let width = band.min(t.tiles_x - b * band);
     let row = within / width;
     let ty = if b % 2 == 1 { t.tiles_y - 1 - row } else { row };
-    (
-        (b * band + within % width) * TILE + z_x(local),
-        ty * TILE + z_x(local >> 1),
-    )
+    ((b * band + within % width) * TILE, ty * TILE)
 }
 
 /// `z_x`: the x of Z-order index `l` in an 8x8 tile, its bits 0, 2 and 4 (of `l >> 1`, the y).
