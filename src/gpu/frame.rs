@@ -48,7 +48,9 @@ pub struct FrameStats {
     pub tri_block_entries: u64,
     /// Loop iterations the trace's lanes ran, busy or idle: per subgroup the most iterations
     /// one of its invocations ran, times the subgroup size (as above). `steps` over it is the
-    /// share of lanes that did work, what sorting rays could at best gain.
+    /// share of lanes that did work, what sorting rays could at best gain. The size is the
+    /// largest any subgroup of the batch reported: exact where a pipeline's subgroups share one
+    /// size (lavapipe, NVIDIA), an upper bound of the lanes where they may differ.
     pub lane_steps: u64,
     /// Samples per pixel traced; secondary rays spawned; rays that entered traversal (primary
     /// rays culled by the model's box and rays not needed do not).
