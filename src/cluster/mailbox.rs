@@ -27,21 +27,27 @@ fn idle(probes: u32, since: Instant) {
 /// Waits for the next message (any source, any tag) for at most `timeout`: its bytes, sender and
 /// tag.
 pub fn wait_any(world: &SimpleCommunicator, timeout: Duration) -> Result<(Vec<u8>, u32, i32)> {
+    next_within(world, timeout).ok_or_else(|| Error::Timeout {
+        what: "message from any rank".into(),
+        seconds: timeout.as_secs_f64(),
+        likely: Some("a rank has hung or died"),
+    })
+}
+
+/// The next message (any source, any tag) if one comes within `slice`: its bytes, sender and
+/// tag.
+pub fn next_within(world: &SimpleCommunicator, slice: Duration) -> Option<(Vec<u8>, u32, i32)> {
     let start = Instant::now();
     let mut empty = 0u32;
     loop {
         if let Some(probed) = world.any_process().immediate_matched_probe() {
             let (data, status) = probed.matched_receive_vec::<u8>();
-            return Ok((data, status.source_rank() as u32, status.tag()));
+            return Some((data, status.source_rank() as u32, status.tag()));
         }
         empty += 1;
         idle(empty, start);
-        if start.elapsed() > timeout {
-            return Err(Error::Timeout {
-                what: "message from any rank".into(),
-                seconds: timeout.as_secs_f64(),
-                likely: Some("a rank has hung or died"),
-            });
+        if start.elapsed() > slice {
+            return None;
         }
     }
 }

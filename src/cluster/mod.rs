@@ -6,7 +6,7 @@
 //!
 //! `node` is one process from MPI set-up to the end: `startup` (open, agree), then
 //! `render_rank` or `coordinator` (`balancer` and `display`). `protocol` holds the messages,
-//! `mailbox` sends and waits for them, `schedule` decides the tiles, `pixels` packs and
+//! `mailbox` sends and waits for them, `liveness` tells a working rank from a stopped one, `schedule` decides the tiles, `pixels` packs and
 //! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
 
 pub mod bench;
@@ -26,6 +26,8 @@ mod display;
 mod display_bench;
 #[cfg(feature = "mpi")]
 mod failure;
+#[cfg(feature = "mpi")]
+mod liveness;
 #[cfg(feature = "mpi")]
 mod mailbox;
 #[cfg(feature = "mpi")]

@@ -8,6 +8,9 @@
 //!   keeps the order of messages between two ranks.
 //! - the display writes frame f once every render rank's `DONE(f)` is in and every pixel copied.
 //! - after the frames of the display benchmark, `BANDWIDTH` messages measure the link.
+//! - a render rank busy on its GPU sends an empty `ALIVE` to the display and the balancer every
+//!   quarter of the job's timeout, so that they can tell a rank that works from one that has
+//!   stopped (docs/ARCHITECTURE.md, Cluster).
 //!
 //! Decoding checks only the layout; a malformed message is an `Error::Protocol` that names its
 //! tag and sender.
@@ -25,10 +28,18 @@ pub enum Tag {
     Pixels = 3,
     Done = 4,
     Bandwidth = 5,
+    Alive = 6,
 }
 
 impl Tag {
-    pub const ALL: [Tag; 5] = [Tag::Ask, Tag::Work, Tag::Pixels, Tag::Done, Tag::Bandwidth];
+    pub const ALL: [Tag; 6] = [
+        Tag::Ask,
+        Tag::Work,
+        Tag::Pixels,
+        Tag::Done,
+        Tag::Bandwidth,
+        Tag::Alive,
+    ];
 
     pub fn raw(self) -> i32 {
         self as i32
@@ -45,6 +56,7 @@ impl Tag {
             Tag::Pixels => "PIXELS",
             Tag::Done => "DONE",
             Tag::Bandwidth => "BANDWIDTH",
+            Tag::Alive => "ALIVE",
         }
     }
 }
@@ -189,9 +201,14 @@ impl FrameReport {
 pub enum Message {
     Ask(Ask),
     Work(Work),
-    Pixels { frame: u32, bytes: Vec<u8> },
+    Pixels {
+        frame: u32,
+        bytes: Vec<u8>,
+    },
     Done(FrameReport),
     Bandwidth(Vec<u8>),
+    /// A render rank is busy on its GPU (no payload).
+    Alive,
 }
 
 impl Message {
@@ -212,6 +229,14 @@ impl Message {
             },
             Tag::Done => Message::Done(FrameReport::decode(from, &bytes)?),
             Tag::Bandwidth => Message::Bandwidth(bytes),
+            Tag::Alive if bytes.is_empty() => Message::Alive,
+            Tag::Alive => {
+                return Err(malformed(
+                    Tag::Alive,
+                    from,
+                    format!("{} bytes", bytes.len()),
+                ));
+            }
         })
     }
 
@@ -222,6 +247,7 @@ impl Message {
             Message::Pixels { .. } => Tag::Pixels,
             Message::Done(_) => Tag::Done,
             Message::Bandwidth(_) => Tag::Bandwidth,
+            Message::Alive => Tag::Alive,
         }
     }
 }
@@ -290,6 +316,12 @@ mod tests {
         done.extend(b"{\"frame\": 0}");
         let e = protocol_error(Message::decode(Tag::Done.raw(), 5, done));
         assert!(e.contains("DONE message from rank 5"), "{e}");
+        let e = protocol_error(Message::decode(Tag::Alive.raw(), 3, vec![0]));
+        assert!(e.contains("ALIVE message from rank 3: 1 bytes"), "{e}");
+        assert!(matches!(
+            Message::decode(Tag::Alive.raw(), 3, vec![]),
+            Ok(Message::Alive)
+        ));
         let e = protocol_error(Message::decode(9, 2, vec![]));
         assert!(e.contains("(tag 9) from rank 2"), "{e}");
     }

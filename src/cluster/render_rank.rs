@@ -3,6 +3,7 @@
 
 use super::display_bench;
 use super::failure::Failure;
+use super::liveness::Heartbeat;
 use super::mailbox::{poll_from, send, wait_from};
 use super::pixels::{Packer, Wire};
 use super::protocol::{Ask, FrameReport, Tag, Work, malformed};
@@ -11,7 +12,7 @@ use super::{Options, Roles, rma};
 use crate::dc::Ranks;
 use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::Idle;
 use crate::gpu::layout::Pixel;
 use crate::gpu::tracer::{DcSetup, FrameStats, Next, Rect, RectSource, Tracer, ms};
@@ -27,6 +28,10 @@ struct MpiBlocks {
     window: rma::Window,
     ranks: Ranks,
     words: usize,
+    roles: Roles,
+    /// This rank, and how long a read may wait for its owner.
+    rank: u32,
+    timeout: Duration,
 }
 
 impl BlockSource for MpiBlocks {
@@ -40,7 +45,37 @@ impl BlockSource for MpiBlocks {
                 )
             })
             .collect();
-        self.window.get_all(&gets, self.words, out)
+        // While an owner has not answered, tell the display that this rank waits (it is not
+        // the silent one), and give up after the timeout naming the owner.
+        let (start, mut heart) = (Instant::now(), Heartbeat::new(self.timeout));
+        let (roles, me, timeout) = (self.roles, self.rank, self.timeout);
+        let mut waiting = |owed: &[u32]| -> Result<()> {
+            if heart.due() {
+                send(
+                    &SimpleCommunicator::world(),
+                    Roles::DISPLAY,
+                    Tag::Alive,
+                    &[],
+                );
+            }
+            if start.elapsed() > timeout {
+                let owners: Vec<String> = owed
+                    .iter()
+                    .map(|&i| roles.render_rank(i).to_string())
+                    .collect();
+                return Err(Error::Timeout {
+                    what: format!(
+                        "block read answered by rank {} (render), which rank {me} waits for,",
+                        owners.join(", ")
+                    ),
+                    seconds: timeout.as_secs_f64(),
+                    likely: Some("it has stopped, hung or died"),
+                });
+            }
+            std::thread::yield_now();
+            Ok(())
+        };
+        self.window.get_all(&gets, self.words, out, &mut waiting)
     }
 
     fn name(&self) -> &'static str {
@@ -102,6 +137,9 @@ pub fn run(
                     window,
                     ranks,
                     words: bw,
+                    roles,
+                    rank,
+                    timeout: opts.timeout,
                 }),
             };
             // From here the window exists, and freeing it is collective: an error must abort
@@ -109,10 +147,21 @@ pub fn run(
             or_abort(rank, loaded.dc_tracer(&gpu, settings, &resident, setup))
         }
     };
-    // While the GPU works, keep MPI progressing: over TCP a passive Get from another rank is
-    // only served while this rank is inside MPI.
+    // While the GPU works, keep MPI progressing (over TCP a passive Get from another rank is
+    // only served while this rank is inside MPI), and tell the display that this rank works.
+    let mut heart = Heartbeat::new(opts.timeout);
     gpu.set_idle(Some(Idle {
-        hook: Box::new(rma::poll_world),
+        hook: Box::new(move || {
+            rma::poll_world();
+            if heart.due() {
+                send(
+                    &SimpleCommunicator::world(),
+                    Roles::DISPLAY,
+                    Tag::Alive,
+                    &[],
+                );
+            }
+        }),
         limit: opts.timeout,
     }));
     let wire = if opts.exr.is_some() {

@@ -54,6 +54,11 @@ impl Window {
             // message, well after this copy.
             unsafe { std::ptr::copy_nonoverlapping(memory.as_ptr(), base, memory.len()) };
         }
+        // One passive-target epoch for the window's whole life, opened while every rank is
+        // known to be alive: over osc ucx lock_all waits on every target, so an epoch a round
+        // would hang on a stopped rank that the round does not even read from.
+        // SAFETY: the window was just created; unlocked in `drop` before it is freed.
+        check("MPI_Win_lock_all", unsafe { ffi::MPI_Win_lock_all(0, win) })?;
         Ok(Window {
             win,
             words: memory.len(),
@@ -66,9 +71,18 @@ impl Window {
     }
 
     /// Reads each `(target rank, word offset)` piece of `words` u32 into the matching piece of
-    /// `out`, all in one passive-target epoch: lock_all, every Get, unlock_all (which completes
-    /// them). `out.len()` must be `gets.len() * words`.
-    pub fn get_all(&self, gets: &[(u32, u64)], words: usize, out: &mut [u32]) -> Result<()> {
+    /// `out`: a request-based Get each in the window's epoch, tested until all are in. `out.len()` must be `gets.len() * words`. While some are not in,
+    /// `waiting` is called between tests with the target ranks still owed (so that the caller
+    /// can tell the others it waits, and give up): a Get to a stopped rank never completes over
+    /// TCP. If `waiting` gives up, the read cannot be abandoned (MPI still owns `out`): the error
+    /// is reported and the job aborted here.
+    pub fn get_all(
+        &self,
+        gets: &[(u32, u64)],
+        words: usize,
+        out: &mut [u32],
+        waiting: &mut dyn FnMut(&[u32]) -> Result<()>,
+    ) -> Result<()> {
         if out.len() != gets.len() * words {
             return Err(Error::Mpi(format!(
                 "{} words of room for {} blocks of {words}",
@@ -78,17 +92,17 @@ impl Window {
         }
         let count =
             c_int::try_from(words).map_err(|_| Error::Mpi(format!("{words} words in one Get")))?;
-        // No MPI_MODE_NOCHECK: it bought nothing measurable. One epoch for the whole run with a
-        // flush_all per round gained nothing measurable either.
-        // SAFETY: the window is live; `u32` matches MPI_UINT32_T; each destination piece is
-        // `words` u32 inside `out`, which outlives the epoch closed by unlock_all below.
+        // SAFETY: the window is live and in its epoch; `u32` matches MPI_UINT32_T; each
+        // destination piece is `words` u32 inside `out`, which outlives every request: each is
+        // tested to completion below, or the process aborts while one is still open.
         unsafe {
-            check("MPI_Win_lock_all", ffi::MPI_Win_lock_all(0, self.win))?;
             let mut result = Ok(());
+            let mut requests = Vec::with_capacity(gets.len());
             for (&(rank, disp), dst) in gets.iter().zip(out.chunks_mut(words)) {
+                let mut request = ffi::RSMPI_REQUEST_NULL;
                 result = check(
-                    "MPI_Get",
-                    ffi::MPI_Get(
+                    "MPI_Rget",
+                    ffi::MPI_Rget(
                         dst.as_mut_ptr().cast(),
                         count,
                         ffi::RSMPI_UINT32_T,
@@ -97,15 +111,50 @@ impl Window {
                         count,
                         ffi::RSMPI_UINT32_T,
                         self.win,
+                        &mut request,
                     ),
                 );
                 if result.is_err() {
                     break;
                 }
+                requests.push((request, rank));
             }
-            // Always close the epoch, even after a failed Get.
-            let unlock = check("MPI_Win_unlock_all", ffi::MPI_Win_unlock_all(self.win));
-            result.and(unlock)
+            while result.is_ok() && !requests.is_empty() {
+                let mut owed = Vec::new();
+                let mut kept = Vec::with_capacity(requests.len());
+                for (mut request, rank) in requests {
+                    let mut done: c_int = 0;
+                    let test = check(
+                        "MPI_Test",
+                        ffi::MPI_Test(&mut request, &mut done, ffi::RSMPI_STATUS_IGNORE),
+                    );
+                    if test.is_err() {
+                        result = test;
+                    }
+                    if done == 0 && result.is_ok() {
+                        kept.push((request, rank));
+                        if !owed.contains(&rank) {
+                            owed.push(rank);
+                        }
+                    }
+                }
+                requests = kept;
+                if !requests.is_empty()
+                    && result.is_ok()
+                    && let Err(e) = waiting(&owed)
+                {
+                    crate::report!("error: {e}");
+                    abort_world(1);
+                }
+            }
+            if let Err(e) = &result
+                && !requests.is_empty()
+            {
+                // A Get failed with others in flight: they would write into `out` later.
+                crate::report!("error: {e}");
+                abort_world(1);
+            }
+            result
         }
     }
 }
@@ -115,6 +164,7 @@ impl Drop for Window {
         // SAFETY: collective; every member drops its window at the same point of the protocol
         // (after the last frame). The memory is released after the window.
         unsafe {
+            ffi::MPI_Win_unlock_all(self.win);
             ffi::MPI_Win_free(&mut self.win);
         }
     }

@@ -716,12 +716,70 @@ fn a_hung_rank_ends_the_job_within_its_timeout() {
     }
 }
 
-/// SIGTERM to mpirun part-way through a job: every rank ends (no process of the job is left),
-/// the job exits non-zero, and the display has removed every frame it wrote, with no temporary
-/// file left (the other ranks wait a moment before exiting so that mpirun, which kills the whole
-/// job once one rank has exited, leaves the display the time).
+/// The process of world rank `rank` of a job whose command line holds `mark`.
+fn rank_pid(mark: &str, rank: u32) -> Option<u32> {
+    let want = format!("OMPI_COMM_WORLD_RANK={rank}");
+    std::fs::read_dir("/proc").ok()?.find_map(|e| {
+        let e = e.ok()?;
+        let pid: u32 = e.file_name().to_str()?.parse().ok()?;
+        let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
+        let environ = std::fs::read(e.path().join("environ")).ok()?;
+        let has = |bytes: &[u8], s: &str| bytes.split(|&b| b == 0).any(|w| w == s.as_bytes());
+        let is_rank = String::from_utf8_lossy(&cmdline).contains(mark)
+            && !String::from_utf8_lossy(&cmdline).starts_with("mpirun")
+            && has(&environ, &want);
+        is_rank.then_some(pid)
+    })
+}
+
+/// A render rank stopped from outside (SIGSTOP: a frozen node, not a dead one) after a few
+/// frames, while the other render rank keeps working and keeps messages flowing: the job ends
+/// non-zero within its timeout plus a few seconds, naming the stopped rank, over shared memory,
+/// TCP and UCX (without the display's per-rank silence check it ran until the rank was
+/// continued).
 #[test]
-fn sigterm_to_mpirun_ends_every_rank_and_leaves_no_outputs() {
+fn a_rank_stopped_from_outside_ends_the_job_within_its_timeout() {
+    let fx = Fixture::new("cl-sigstop");
+    for (name, mca) in [("shm", SHARED), ("tcp", TCP_PT2PT), ("ucx", UCX)] {
+        let dir = fx.dir.path(name);
+        std::fs::create_dir(&dir).unwrap();
+        let mut cmd = Command::new("mpirun");
+        cmd.arg("--oversubscribe")
+            .args(mca)
+            .args(["-n", "4", dcrt_bin(), "render"])
+            .arg(&fx.dcb)
+            .arg("-o")
+            .arg(dir.join("f.png"))
+            .args(["--cache", "1/8", "--frames", "100000", "--timeout", "3"])
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+        let mark = dir.to_string_lossy().into_owned();
+        let rank3 = |_mpirun: u32| rank_pid(&mark, 3).expect("rank 3 is running");
+        let limit = Duration::from_secs(60);
+        let (status, err, took) =
+            crate::outputs::signal_after_to(cmd, "frame 3:", "STOP", limit, &rank3);
+        assert!(!status.success(), "{name}: the job succeeded:\n{err}");
+        assert!(
+            took < Duration::from_secs(3 + 10),
+            "{name}: the job took {took:?} after the stop:\n{err}"
+        );
+        assert!(
+            err.contains("rank 3 (render)") && err.contains("stopped, hung or died"),
+            "{name}: the stopped rank is not named:\n{err}"
+        );
+        assert!(
+            rank_pid(&mark, 3).is_none(),
+            "{name}: rank 3 outlived the job"
+        );
+    }
+}
+
+/// SIGTERM to mpirun part-way through a job: every rank ends (no process of the job is left),
+/// the job exits non-zero, and the display keeps the frames it finished, each whole, says so,
+/// and leaves no temporary file (the other ranks wait a moment before exiting so that mpirun,
+/// which kills the whole job once one rank has exited, leaves the display the time).
+#[test]
+fn sigterm_to_mpirun_ends_every_rank_and_keeps_the_finished_frames() {
     let dir = TempDir::new("cluster-sigterm");
     let scene = dir.write(
         "rm.toml",
@@ -742,12 +800,24 @@ fn sigterm_to_mpirun_ends_every_rank_and_leaves_no_outputs() {
         took < Duration::from_secs(30),
         "the job took {took:?} to end after SIGTERM:\n{err}"
     );
-    let mut left: Vec<String> = std::fs::read_dir(&dir.0)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+    let left = listing(&dir.0);
+    let frames: Vec<u32> = left
+        .iter()
+        .filter(|f| *f != "rm.toml")
+        .map(|f| {
+            let i = f.strip_prefix("f_").and_then(|f| f.strip_suffix(".png"));
+            i.and_then(|i| i.parse().ok())
+                .unwrap_or_else(|| panic!("the job left {f}:\n{err}"))
+        })
         .collect();
-    left.sort();
-    assert_eq!(left, ["rm.toml"], "the job left outputs:\n{err}");
+    let (n, last) = (frames.len(), frames.iter().max().copied().unwrap_or(0));
+    assert!(n >= 3, "{n} frames kept:\n{err}");
+    let said = format!("interrupted by SIGTERM after frame {last}: kept {n} frames in");
+    assert!(err.contains(&said), "no {said:?} in:\n{err}");
+    for f in frames {
+        let png = image::open(dir.path(&format!("f_{f:04}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (32, 24), "frame {f}");
+    }
     // No rank outlives mpirun: none of them has this test's directory on its command line.
     let mark = dir.0.to_string_lossy().into_owned();
     let alive: Vec<String> = std::fs::read_dir("/proc")

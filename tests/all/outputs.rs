@@ -1,6 +1,7 @@
 //! Outputs are safe: written through a temporary file and renamed into place, never over an
 //! input of the same run or over something that is not a regular file, checked before any
-//! rendering, and on failure nothing of the run is left (what was there before stays).
+//! rendering; on failure or interruption the frames the run finished stay, nothing half done is
+//! left, and what was there before stays.
 
 use crate::common::*;
 use std::ffi::OsStr;
@@ -224,10 +225,22 @@ fn outputs_are_replaced_whole() {
 /// to its end. Every wait is bounded by `limit`; a command still running then is killed and the
 /// test fails.
 pub(crate) fn signal_after(
+    cmd: std::process::Command,
+    line: &str,
+    signal: &str,
+    limit: std::time::Duration,
+) -> (std::process::ExitStatus, String, std::time::Duration) {
+    signal_after_to(cmd, line, signal, limit, &|pid| pid)
+}
+
+/// `signal_after`, the signal going to the process `target` names given the command's pid (a
+/// rank of an mpirun job, say).
+pub(crate) fn signal_after_to(
     mut cmd: std::process::Command,
     line: &str,
     signal: &str,
     limit: std::time::Duration,
+    target: &dyn Fn(u32) -> u32,
 ) -> (std::process::ExitStatus, String, std::time::Duration) {
     use std::io::BufRead;
     use std::time::Instant;
@@ -265,7 +278,7 @@ pub(crate) fn signal_after(
         }
     }
     let status = std::process::Command::new("kill")
-        .args([format!("-{signal}"), child.id().to_string()])
+        .args([format!("-{signal}"), target(child.id()).to_string()])
         .status()
         .unwrap();
     assert!(status.success(), "kill -{signal} failed");
@@ -289,14 +302,17 @@ pub(crate) fn signal_after(
     (status, text, took)
 }
 
-/// SIGTERM or SIGINT part-way through a one-process run: the run removes every output it wrote
-/// and leaves no temporary file, says why, and exits with 128 + the signal; files that were
-/// there before and are not outputs of the run stay.
+/// SIGTERM, SIGINT or SIGHUP part-way through a one-process run: the run keeps every frame it
+/// finished (PNG and EXR, each whole) and says so, removes its temporary files, exits with 128 +
+/// the signal; a file the run would have overwritten later stays as it was, and files that are
+/// not outputs of the run stay.
 #[test]
-fn an_interrupted_render_leaves_nothing_of_itself() {
-    for (signal, code) in [("TERM", 143), ("INT", 130)] {
+fn an_interrupted_render_keeps_its_finished_frames() {
+    for (signal, code) in [("TERM", 143), ("INT", 130), ("HUP", 129)] {
         let (d, s) = setup(&format!("out-sig{signal}"));
         d.write("keep.txt", "mine");
+        // An output of a frame the run will not reach.
+        d.write("f_0900.png", "old");
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"));
         cmd.arg("render")
             .arg(&s)
@@ -304,19 +320,36 @@ fn an_interrupted_render_leaves_nothing_of_itself() {
             .arg(d.path("f.png"))
             .arg("--exr")
             .arg(d.path("f.exr"))
-            .args(["--aov", "depth", "--frames", "100000"]);
+            .args(["--aov", "depth", "--frames", "1000"]);
         let limit = std::time::Duration::from_secs(60);
         let (status, err, _) = signal_after(cmd, "frame 2:", signal, limit);
         assert_eq!(status.code(), Some(code), "SIG{signal}:\n{err}");
-        assert!(
-            err.contains(&format!("interrupted by SIG{signal}")),
-            "SIG{signal} not named:\n{err}"
+        let left = listing(&d.0);
+        let pngs: Vec<&String> = left
+            .iter()
+            .filter(|f| f.starts_with("f_") && f.ends_with(".png") && *f != "f_0900.png")
+            .collect();
+        let n = pngs.len();
+        assert!(n >= 3, "SIG{signal}: {n} frames kept:\n{err}");
+        let said = format!(
+            "interrupted by SIG{signal} after frame {}: kept {n} frames in {}/",
+            n - 1,
+            d.0.display()
         );
-        assert_eq!(
-            listing(&d.0),
-            ["keep.txt", "s.toml", "tri.obj"],
-            "SIG{signal} left outputs:\n{err}"
-        );
+        assert!(err.contains(&said), "SIG{signal}: no {said:?} in:\n{err}");
+        let mut want: Vec<String> = (0..n)
+            .flat_map(|i| [format!("f_{i:04}.exr"), format!("f_{i:04}.png")])
+            .chain(["f_0900.png", "keep.txt", "s.toml", "tri.obj"].map(String::from))
+            .collect();
+        want.sort();
+        assert_eq!(left, want, "SIG{signal}: what is left:\n{err}");
+        for i in 0..n {
+            let png = image::open(d.path(&format!("f_{i:04}.png"))).unwrap();
+            assert_eq!((png.width(), png.height()), (24, 16));
+            let exr = dcrt::output::read_exr(&d.path(&format!("f_{i:04}.exr"))).unwrap();
+            assert!(exr.iter().any(|(c, _)| c == "Z"), "frame {i}: {exr:?}");
+        }
+        assert_eq!(std::fs::read(d.path("f_0900.png")).unwrap(), b"old");
         assert_eq!(std::fs::read(d.path("keep.txt")).unwrap(), b"mine");
     }
 }
