@@ -13,7 +13,8 @@ use std::sync::{Mutex, MutexGuard};
 /// flushed, fsynced and renamed into place. On any error the temporary file is removed and what
 /// was at `path` before stays. A `path` that exists but is not a regular file (a device, a FIFO,
 /// a directory) is refused: renaming over it would replace the node itself. The file is one of
-/// this run's outputs: `remove_written` and an interruption (`remove_on_interrupt`) remove it.
+/// this run's outputs: `remove_written` and an interruption (`remove_on_interrupt`) remove it
+/// unless it belongs to a finished frame (`keep_frame`).
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
@@ -31,20 +32,28 @@ pub fn write_record(
     write_file(path, false, fill)
 }
 
-/// What this process has written (`done`) and is writing (`partial`): what an interrupted or
-/// failed run removes (docs/ARCHITECTURE.md, Outputs). Held only to create, rename and remove,
-/// never while a file is filled, so an interruption waits for no write.
+/// What this process has written (`done`), finished as whole frames (`kept`), and is writing
+/// (`partial`): an interrupted or failed run removes the partial and the done, and keeps the
+/// kept (docs/ARCHITECTURE.md, Outputs). Held only to create, rename and remove, never while a
+/// file is filled, so an interruption waits for no write.
 struct Written {
     done: Vec<PathBuf>,
     partial: Vec<PathBuf>,
     /// Directories of temporary files (`Scratch`), removed with everything in them.
     scratch: Vec<PathBuf>,
+    /// The outputs of finished frames, the number of those frames and the last of them.
+    kept: Vec<PathBuf>,
+    frames: u32,
+    last_frame: Option<u32>,
 }
 
 static WRITTEN: Mutex<Written> = Mutex::new(Written {
     done: Vec::new(),
     partial: Vec::new(),
     scratch: Vec::new(),
+    kept: Vec::new(),
+    frames: 0,
+    last_frame: None,
 });
 
 fn written() -> MutexGuard<'static, Written> {
@@ -93,22 +102,57 @@ fn write_file(
     done
 }
 
-/// Removes every output this process has written (a failed run leaves nothing of itself).
-pub fn remove_written() {
+/// Marks the outputs of finished frame `frame` (all of them written) as kept: a failed or
+/// interrupted run leaves them, as a user who stops a long sequence expects the frames it
+/// finished. Frames may finish out of order (the display writes them on threads of their own).
+pub fn keep_frame(frame: u32, paths: &[&Path]) {
+    let mut w = written();
+    w.done.retain(|p| !paths.contains(&p.as_path()));
+    w.kept.extend(paths.iter().map(|p| p.to_path_buf()));
+    w.frames += 1;
+    w.last_frame = w.last_frame.max(Some(frame));
+}
+
+/// Removes the outputs this process has written that are not kept frames (a failed run leaves
+/// nothing half done), and says what it keeps: `kept 722 frames in k/`, or `None` when it keeps
+/// nothing.
+pub fn remove_written() -> Option<String> {
     let mut w = written();
     for p in w.done.drain(..) {
         let _ = std::fs::remove_file(p);
     }
+    kept_summary(&w)
+}
+
+/// `after frame 721: kept 722 frames in k/`, or `None` when no frame was finished.
+fn kept_summary(w: &Written) -> Option<String> {
+    let last = w.last_frame?;
+    let mut dirs: Vec<String> = Vec::new();
+    for p in &w.kept {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => format!("{}/", d.display()),
+            _ => "./".into(),
+        };
+        if !dirs.contains(&dir) {
+            dirs.push(dir);
+        }
+    }
+    let frames = if w.frames == 1 { "frame" } else { "frames" };
+    Some(format!(
+        "after frame {last}: kept {} {frames} in {}",
+        w.frames,
+        dirs.join(" and ")
+    ))
 }
 
 /// Installs the answer to SIGTERM, SIGINT and SIGHUP for a command that writes outputs: a thread
 /// that, on the first of them, removes the run's temporary files (`Scratch` directories too) and
-/// outputs, says so on stderr
-/// and exits with 128 + the signal's number, whatever the rest of the process is doing (a GPU
-/// wait, an MPI call). A file being renamed into place is waited for, so none is left half done.
-/// A process that has written nothing waits `idle_grace` first: an MPI launcher kills every rank
-/// as soon as one has exited, and the rank that writes the frames needs the time to remove them
-/// (docs/ARCHITECTURE.md, Outputs).
+/// the outputs of frames it had not finished, keeps the finished frames (`keep_frame`) and trace
+/// records, says so on stderr and exits with 128 + the signal's number, whatever the rest of
+/// the process is doing (a GPU wait, an MPI call). A file being renamed into place is waited
+/// for, so none is left half done. A process that has written nothing waits `idle_grace` first:
+/// an MPI launcher kills every rank as soon as one has exited, and the rank that writes the
+/// frames needs the time to finish (docs/ARCHITECTURE.md, Outputs).
 pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
     let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
@@ -130,11 +174,25 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                     SIGINT => "SIGINT",
                     _ => "SIGHUP",
                 };
-                crate::report!(
-                    "error: interrupted by {name}; removed the {} output file(s) this run wrote",
-                    w.done.len()
-                );
-                if w.done.is_empty() && w.partial.is_empty() && w.scratch.is_empty() {
+                let removed = match w.done.len() {
+                    0 => String::new(),
+                    n => format!("; removed {n} unfinished output(s)"),
+                };
+                match kept_summary(&w) {
+                    Some(kept) => crate::report!("error: interrupted by {name} {kept}{removed}"),
+                    None if w.done.is_empty() => {
+                        crate::report!("error: interrupted by {name}; no output was finished")
+                    }
+                    None => crate::report!(
+                        "error: interrupted by {name}; removed the {} output file(s) this run wrote",
+                        w.done.len()
+                    ),
+                }
+                if w.kept.is_empty()
+                    && w.done.is_empty()
+                    && w.partial.is_empty()
+                    && w.scratch.is_empty()
+                {
                     std::thread::sleep(idle_grace);
                 }
                 signal_hook::low_level::exit(128 + sig);

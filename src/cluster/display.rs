@@ -97,6 +97,22 @@ impl<'a> Display<'a> {
         self.written >= self.opts.frames
     }
 
+    /// The frame the display waits for (frames complete in order: each needs every render rank,
+    /// and each rank renders them in order) and the world ranks whose `DONE` of it is not in.
+    pub fn waiting_on(&self) -> (u32, Vec<u32>) {
+        let frame = self.written;
+        let done: Vec<u32> = self
+            .frames
+            .get(&frame)
+            .map(|a| a.render.iter().map(|r| r.rank).collect())
+            .unwrap_or_default();
+        let ranks = (0..self.roles.render_ranks())
+            .map(|i| self.roles.render_rank(i))
+            .filter(|r| !done.contains(r))
+            .collect();
+        (frame, ranks)
+    }
+
     fn assembly(&mut self, frame: u32) -> &mut Assembly {
         let (image, wire, start) = (self.image, self.wire, self.start);
         self.frames
@@ -167,7 +183,9 @@ impl<'a> Display<'a> {
             // The display benchmark measures receiving and assembling frames; only its last
             // frame is encoded, to show what was received.
             if !opts.display_bench || f + 1 == opts.frames {
-                write_frame(&opts, f, buf, wire, legend.as_ref())?;
+                let files = write_frame(&opts, f, buf, wire, legend.as_ref())?;
+                let files: Vec<&std::path::Path> = files.iter().map(|p| p.as_path()).collect();
+                output::keep_frame(f, &files);
             }
             if let Some(dir) = &opts.trace {
                 write_events(dir, f, rank, roles, events)?;
@@ -228,13 +246,14 @@ fn summarize(f: u32, render: &[FrameReport], span_ms: f64, opts: &Options) {
     );
 }
 
+/// Writes frame `f`'s PNG (and EXR): the paths written.
 fn write_frame(
     opts: &Options,
     f: u32,
     buf: FrameBuf,
     wire: Wire,
     legend: Option<&crate::legend::Legend>,
-) -> Result<()> {
+) -> Result<Vec<std::path::PathBuf>> {
     let png = output::numbered(&opts.output, f, opts.frames);
     match wire {
         Wire::Rgb8 => {
@@ -244,15 +263,19 @@ fn write_frame(
             if let Some(l) = legend {
                 l.draw(&mut img)?;
             }
-            output::save_png(&png, &img)
+            output::save_png(&png, &img)?;
+            Ok(vec![png])
         }
         Wire::Full => {
             let frame = buf.into_frame();
             output::write_png_legend(&png, &frame, opts.exposure, legend)?;
+            let mut files = vec![png];
             if let Some(exr) = &opts.exr {
-                output::write_exr(&output::numbered(exr, f, opts.frames), &frame, &opts.aovs)?;
+                let exr = output::numbered(exr, f, opts.frames);
+                output::write_exr(&exr, &frame, &opts.aovs)?;
+                files.push(exr);
             }
-            Ok(())
+            Ok(files)
         }
     }
 }

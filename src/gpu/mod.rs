@@ -31,6 +31,21 @@ pub struct Gpu {
     idle: Mutex<Option<Idle>>,
 }
 
+/// Counts of live GPU objects and the bytes of GPU memory they hold (`Gpu::live`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Live {
+    pub buffers: isize,
+    pub textures: isize,
+    pub texture_views: isize,
+    pub bind_groups: isize,
+    pub pipelines: isize,
+    pub shader_modules: isize,
+    pub command_encoders: isize,
+    pub query_sets: isize,
+    pub buffer_bytes: isize,
+    pub texture_bytes: isize,
+}
+
 /// What to do while waiting on the GPU, and for how long at most.
 pub struct Idle {
     pub hook: Box<dyn FnMut() + Send>,
@@ -211,6 +226,23 @@ impl Gpu {
         }
         drop(idle);
         self.check()
+    }
+
+    /// The GPU objects alive now (wgpu's counters): what a long session must keep flat.
+    pub fn live(&self) -> Live {
+        let h = self.device.get_internal_counters().hal;
+        Live {
+            buffers: h.buffers.read(),
+            textures: h.textures.read(),
+            texture_views: h.texture_views.read(),
+            bind_groups: h.bind_groups.read(),
+            pipelines: h.compute_pipelines.read() + h.render_pipelines.read(),
+            shader_modules: h.shader_modules.read(),
+            command_encoders: h.command_encoders.read(),
+            query_sets: h.query_sets.read(),
+            buffer_bytes: h.buffer_memory.read(),
+            texture_bytes: h.texture_memory.read(),
+        }
     }
 
     /// Installs (or with `None` removes) what runs while this process waits on the GPU.

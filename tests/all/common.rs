@@ -160,6 +160,11 @@ pub fn limited(blocks: u32, args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::proces
 
 /// Asserts that two frames are bit-identical, naming the first pixel that is not.
 pub fn same_pixels(a: &Frame, b: &Frame, what: &str) {
+    assert_eq!(
+        (a.width, a.height, a.pixels.len()),
+        (b.width, b.height, b.pixels.len()),
+        "{what}: frames of different sizes"
+    );
     for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
         assert_eq!(
             bytemuck::bytes_of(p),

@@ -23,5 +23,6 @@ mod robust;
 mod scale;
 mod shaders;
 mod shading;
+mod soak;
 mod tools;
 mod trace_loop;

@@ -598,6 +598,6 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
             .transpose()?,
     };
     // A failed job leaves none of the frames this rank wrote, as in one process.
-    dcrt::cluster::run(&opts).inspect_err(|_| dcrt::output::remove_written())?;
+    dcrt::cluster::run(&opts).inspect_err(|_| render::say_kept(dcrt::output::remove_written()))?;
     Ok(())
 }

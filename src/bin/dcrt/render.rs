@@ -72,10 +72,17 @@ pub fn render(a: RenderArgs) -> Result<()> {
 
 /// The frames of one process, replicated or as one virtual rank of a distributed cache: PNG (and
 /// EXR) per frame, a line on stderr, traces and `--stats` when asked. Each file is written
-/// atomically; if the run fails, the files it has written are removed, so a failed run leaves
-/// nothing half done.
+/// atomically; if the run fails, the outputs of the frame it was on are removed and the
+/// finished frames kept, so a failed run leaves nothing half done and loses no finished work.
 fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
-    frames_of(a, format).inspect_err(|_| output::remove_written())
+    frames_of(a, format).inspect_err(|_| say_kept(output::remove_written()))
+}
+
+/// After a failure: what the run keeps, if anything.
+pub fn say_kept(kept: Option<String>) {
+    if let Some(kept) = kept {
+        dcrt::report!("note: the run failed {kept}");
+    }
 }
 
 fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
@@ -166,10 +173,15 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
             }
             let png = numbered(&a.output);
             output::write_png_legend(&png, &frame, a.exposure, legend.as_ref())?;
-            if let Some(exr) = &a.exr {
-                let exr = numbered(exr);
-                output::write_exr(&exr, &frame, &a.aov)?;
+            let exr = a.exr.as_deref().map(numbered);
+            if let Some(exr) = &exr {
+                output::write_exr(exr, &frame, &a.aov)?;
             }
+            let files: Vec<&Path> = [Some(png.as_path()), exr.as_deref()]
+                .into_iter()
+                .flatten()
+                .collect();
+            output::keep_frame(i, &files);
             frames_done.set(i + 1);
             say(
                 &bar,

@@ -42,6 +42,10 @@ struct SoakReport {
     rss_end_mib: f64,
     rss_peak_mib: f64,
     frames_per_second: f64,
+    /// Live GPU objects (wgpu's counters) after the first tenth of the run and at its end:
+    /// equal unless the session leaks GPU objects.
+    gpu_objects_warm: dcrt::gpu::Live,
+    gpu_objects_end: dcrt::gpu::Live,
 }
 
 /// Least-squares slope of y over x.
@@ -101,6 +105,7 @@ pub fn run(
         role: Role::one_process(&tracer),
         trace_dir: None,
     };
+    let mut live_warm = gpu.live();
     let bar = Progress { quiet: a.quiet }.bar(u64::from(frames), "soak frames");
     let table = Table(&[("frame", 7), ("seconds", 9), ("RSS MiB", 9)]);
     if !a.json {
@@ -115,6 +120,9 @@ pub fn run(
         &mut |i, frame, _| {
             std::hint::black_box(dcrt::output::to_rgb8(&frame));
             bar.inc(1);
+            if i == frames / 10 {
+                live_warm = gpu.live();
+            }
             if i % every == 0 || i + 1 == frames {
                 let s = sample(i)?;
                 if !a.json {
@@ -153,19 +161,26 @@ pub fn run(
         rss_end_mib: mib(samples.last().expect("sampled").rss_bytes),
         rss_peak_mib: mib(peak),
         frames_per_second: f64::from(frames) / seconds,
+        gpu_objects_warm: live_warm,
+        gpu_objects_end: gpu.live(),
         samples,
     };
     emit(a.json, &report, |r| {
         println!(
             "{} frames at {:.1} frames/s: RSS {:.1} MiB at frame 0, {:.1} MiB at the end (peak \
-             {:.1}); slope after frame {}: {:.0} bytes per frame",
+             {:.1}); slope after frame {}: {:.0} bytes per frame; GPU objects {}",
             r.frames,
             r.frames_per_second,
             r.rss_start_mib,
             r.rss_end_mib,
             r.rss_peak_mib,
             r.frames / 10,
-            r.bytes_per_frame
+            r.bytes_per_frame,
+            if r.gpu_objects_warm == r.gpu_objects_end {
+                format!("flat ({:?})", r.gpu_objects_end)
+            } else {
+                format!("{:?} -> {:?}", r.gpu_objects_warm, r.gpu_objects_end)
+            }
         );
     })
 }
