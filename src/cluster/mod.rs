@@ -52,6 +52,11 @@ use std::time::Duration;
 /// How many ranks the launcher started, from the variables mpirun and srun set; `None` when this
 /// process was started on its own.
 pub fn launched_ranks() -> Option<u32> {
+    launched_ranks_in(|v| std::env::var(v).ok())
+}
+
+/// `launched_ranks` with the environment given as a function of the variable's name.
+fn launched_ranks_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
     [
         "OMPI_COMM_WORLD_SIZE",
         "PMI_SIZE",
@@ -60,7 +65,7 @@ pub fn launched_ranks() -> Option<u32> {
         "SLURM_STEP_NUM_TASKS",
     ]
     .iter()
-    .find_map(|v| std::env::var(v).ok()?.trim().parse().ok())
+    .find_map(|v| var(v)?.trim().parse().ok())
 }
 
 /// Which rank does what.
@@ -177,6 +182,40 @@ pub fn run(opts: &Options) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn launchers_are_recognised_by_their_variables() {
+        let env = |pairs: &'static [(&'static str, &'static str)]| {
+            move |k: &str| {
+                pairs
+                    .iter()
+                    .find(|(n, _)| *n == k)
+                    .map(|(_, v)| v.to_string())
+            }
+        };
+        assert_eq!(launched_ranks_in(env(&[])), None);
+        assert_eq!(
+            launched_ranks_in(env(&[("OMPI_COMM_WORLD_SIZE", "4")])),
+            Some(4)
+        );
+        assert_eq!(launched_ranks_in(env(&[("PMI_SIZE", "3")])), Some(3));
+        assert_eq!(launched_ranks_in(env(&[("PMIX_SIZE", " 6\n")])), Some(6));
+        assert_eq!(
+            launched_ranks_in(env(&[("MV2_COMM_WORLD_SIZE", "2")])),
+            Some(2)
+        );
+        assert_eq!(
+            launched_ranks_in(env(&[("SLURM_STEP_NUM_TASKS", "8")])),
+            Some(8)
+        );
+        assert_eq!(
+            launched_ranks_in(env(&[("SLURM_STEP_NUM_TASKS", "x")])),
+            None
+        );
+        // Open MPI's own variable first.
+        let both = env(&[("SLURM_STEP_NUM_TASKS", "8"), ("OMPI_COMM_WORLD_SIZE", "4")]);
+        assert_eq!(launched_ranks_in(both), Some(4));
+    }
 
     #[test]
     fn roles_for_every_size() {

@@ -241,6 +241,8 @@ fn check_traces(dir: &Path, k: u32, frames: u32, (w, h): (u32, u32)) -> Vec<u64>
     let (balancer, first) = if k == 2 { (0, 1) } else { (1, 2) };
     let render: Vec<u32> = (first..k).collect();
     let mut fetched = vec![0u64; render.len()];
+    // Each render rank's static tiles, the same in every frame (chapter 5.1).
+    let mut statics: Vec<Option<Vec<[u32; 4]>>> = vec![None; render.len()];
     for f in 0..frames {
         let at_balancer = records(dir, f, balancer);
         let role = of(&at_balancer, "frame").next().expect("a frame record")["role"].clone();
@@ -281,6 +283,30 @@ fn check_traces(dir: &Path, k: u32, frames: u32, (w, h): (u32, u32)) -> Vec<u64>
             "frame {f}: each render rank's frame ended once"
         );
         for (i, &r) in render.iter().enumerate() {
+            // The balancer's answers to rank r in order: its static tiles, then tiles on demand,
+            // then the end of its frame.
+            let mine: Vec<&Value> = grants.iter().filter(|g| g["rank"] == r).collect();
+            let kinds: Vec<&str> = mine.iter().map(|g| g["kind"].as_str().unwrap()).collect();
+            let n_static = kinds.iter().take_while(|&&k| k == "static").count();
+            // The tests' images have several tiles per render rank: each gets static ones.
+            assert!(
+                n_static >= 1,
+                "frame {f}: rank {r}: no static tiles: {kinds:?}"
+            );
+            assert_eq!(kinds.last(), Some(&"end"), "frame {f}: rank {r}: {kinds:?}");
+            assert!(
+                kinds[n_static..kinds.len() - 1]
+                    .iter()
+                    .all(|&k| k == "dynamic"),
+                "frame {f}: rank {r}: grants out of order: {kinds:?}"
+            );
+            let tiles: Vec<[u32; 4]> = mine[..n_static].iter().map(|g| rect(g)).collect();
+            match &statics[i] {
+                None => statics[i] = Some(tiles),
+                Some(before) => {
+                    assert_eq!(&tiles, before, "frame {f}: rank {r}'s static tiles changed")
+                }
+            }
             let v = records(dir, f, r);
             let summary = of(&v, "frame").next().expect("a frame record");
             assert_eq!(summary["role"], "render", "rank {r}");
@@ -503,10 +529,22 @@ fn a_dying_rank_ends_the_job() {
         let job = mpirun(4, SHARED, &args, &[("DCRT_TEST_FAIL", how)], 30);
         job.assert_ended_within(30, how);
         let out = job.out;
+        let err = stderr(&out);
         assert!(!out.status.success(), "{how}: the job succeeded");
-        if how.starts_with("panic") {
-            assert!(stderr(&out).contains("rank 3: panic"), "{}", stderr(&out));
-        }
+        assert!(out.status.code().is_some_and(|c| c != 0), "{how}: {err}");
+        let named = if how.starts_with("panic") {
+            "rank 3: panic"
+        } else {
+            "process rank 2"
+        };
+        assert!(err.contains(named), "{how}: no {named:?} in:\n{err}");
+        // The rank died in frame 0: no frame was finished, so none is kept, and nothing
+        // half written is left.
+        let left: Vec<String> = listing(&fx.dir.0)
+            .into_iter()
+            .filter(|f| f.starts_with("die") || f.contains(".partial"))
+            .collect();
+        assert!(left.is_empty(), "{how}: left {left:?}:\n{err}");
     }
 }
 

@@ -353,3 +353,101 @@ fn an_interrupted_render_keeps_its_finished_frames() {
         assert_eq!(std::fs::read(d.path("keep.txt")).unwrap(), b"mine");
     }
 }
+
+/// The EXR contract read back against values known in closed form: the scene's one triangle
+/// (0,0,0) (1,0,0) (0,1,0) seen straight down from 3 units above (0.3, 0.3): a pixel whose ray
+/// clearly hits it has `Z` = the distance along the normalized ray, `id` 0 and a unit `N` along
+/// z; one that clearly misses has `Z` = +inf, `id` 0xFFFFFFFF and `N` zero. The EXR's colour is
+/// linear and ignores `--exposure`; the PNG is sRGB of the colour times 2^exposure.
+#[test]
+fn exr_channels_hold_known_depths_ids_and_normals() {
+    use dcrt::output::{ExrSamples, read_exr};
+    let (d, s) = setup("out-exr-contract");
+    let (w, h) = (24usize, 16usize);
+    let mut runs = Vec::new();
+    for (tag, exposure) in [("e0", "0"), ("e1", "1")] {
+        let (png, exr) = (d.path(&format!("{tag}.png")), d.path(&format!("{tag}.exr")));
+        let r = dcrt(&[
+            &"render",
+            &s,
+            &"-o",
+            &png,
+            &"--exr",
+            &exr,
+            &"--aov",
+            &"depth,id,normal",
+            &"--exposure",
+            &exposure,
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let channels: std::collections::BTreeMap<String, ExrSamples> =
+            read_exr(&exr).unwrap().into_iter().collect();
+        runs.push((image::open(&png).unwrap().to_rgb8(), channels));
+    }
+    let f32s = |c: &std::collections::BTreeMap<String, ExrSamples>, name: &str| match &c[name] {
+        ExrSamples::F32(v) => v.clone(),
+        other => panic!("{name}: {other:?}"),
+    };
+    let (_, c) = &runs[0];
+    let (z, nx, ny, nz) = (f32s(c, "Z"), f32s(c, "N.X"), f32s(c, "N.Y"), f32s(c, "N.Z"));
+    let ExrSamples::U32(id) = &c["id"] else {
+        panic!("id is not u32")
+    };
+    let th = (20f64).to_radians().tan();
+    let (mut hits, mut misses) = (0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let sx = 2.0 * (x as f64 + 0.5) / w as f64 - 1.0;
+            let sy = 1.0 - 2.0 * (y as f64 + 0.5) / h as f64;
+            // The ray's direction before normalizing has z = -1: it meets z = 0 at t = 3 |v|.
+            let v = [sx * th * w as f64 / h as f64, sy * th, -1.0];
+            let (px, py) = (0.3 + 3.0 * v[0], 0.3 + 3.0 * v[1]);
+            let inside = px.min(py).min(1.0 - px - py);
+            if inside > 0.02 {
+                hits += 1;
+                let t = 3.0 * (v[0] * v[0] + v[1] * v[1] + 1.0).sqrt();
+                assert!(
+                    (f64::from(z[i]) - t).abs() < 1e-5 * t,
+                    "pixel {i}: Z {} not {t}",
+                    z[i]
+                );
+                assert_eq!(id[i], 0, "pixel {i}");
+                assert!(nx[i].abs() < 1e-6 && ny[i].abs() < 1e-6, "pixel {i}");
+                assert!((nz[i].abs() - 1.0).abs() < 1e-6, "pixel {i}: N.Z {}", nz[i]);
+            } else if inside < -0.02 {
+                misses += 1;
+                assert!(z[i].is_infinite() && z[i] > 0.0, "pixel {i}: Z {}", z[i]);
+                assert_eq!(id[i], u32::MAX, "pixel {i}");
+                assert_eq!([nx[i], ny[i], nz[i]], [0.0; 3], "pixel {i}");
+            }
+        }
+    }
+    assert!(
+        hits > 20 && misses > 20,
+        "{hits} hits, {misses} misses checked"
+    );
+    // Exposure: the EXR's colour is the same, the PNG is sRGB of twice it.
+    let (png1, c1) = &runs[1];
+    for name in ["R", "G", "B"] {
+        assert_eq!(
+            f32s(c, name),
+            f32s(c1, name),
+            "{name} depends on --exposure"
+        );
+    }
+    let srgb = |c: f32| -> u8 {
+        let c = f64::from(c).clamp(0.0, 1.0);
+        let s = if c <= 0.0031308 {
+            12.92 * c
+        } else {
+            1.055 * c.powf(1.0 / 2.4) - 0.055
+        };
+        (s * 255.0 + 0.5) as u8
+    };
+    let (r, g, b) = (f32s(c, "R"), f32s(c, "G"), f32s(c, "B"));
+    for (i, p) in png1.pixels().enumerate() {
+        let want = [srgb(2.0 * r[i]), srgb(2.0 * g[i]), srgb(2.0 * b[i])];
+        assert_eq!(p.0, want, "pixel {i} of the PNG at exposure 1");
+    }
+}
