@@ -113,6 +113,42 @@ fn furnace_converges_to_one() {
     );
 }
 
+/// The furnace with albedo 1 cannot tell whether the albedo is applied at each bounce. A convex
+/// object of albedo 0.5 under a sky of 1: every bounce leaves it for the sky, so each of its
+/// pixels is 0.5 and each sky pixel 1 (a bounce that applied the albedo twice, or not at all,
+/// or sent rays into the surface would show). How bounce directions are distributed is checked
+/// by the cavity test (convergence), whose answer depends on it.
+#[test]
+fn convex_object_of_albedo_one_half_under_a_white_sky_is_one_half() {
+    let mut m = sphere(24, 48, 0.0);
+    m.colors = vec![[0.5; 3]];
+    let p = prepare(m);
+    let sh = Shading {
+        // One sample at each pixel's centre: with several, jittered, an edge pixel mixes the
+        // object and the sky.
+        mode: Mode::Path,
+        spp: 1,
+        sky: [1.0; 3],
+        sun: [0.0; 3],
+        max_depth: 8,
+        ..Shading::default()
+    };
+    let f = shaded(&p, &camera(), 32, 32, sh);
+    let (mut hits, mut worst) = (0, 0f32);
+    for px in &f.pixels {
+        let want = if is_miss(px) { 1.0 } else { 0.5 };
+        hits += usize::from(!is_miss(px));
+        for c in px.rgb {
+            worst = worst.max((c - want).abs());
+        }
+    }
+    assert!(
+        hits > 100,
+        "the object fills part of the view ({hits} pixels)"
+    );
+    assert!(worst < 1e-4, "a pixel is off its value by {worst}");
+}
+
 #[test]
 fn ao_of_a_lone_convex_object_is_one() {
     let p = prepare(sphere(24, 48, 0.0));
