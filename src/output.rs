@@ -180,9 +180,7 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                 };
                 match kept_summary(&w) {
                     Some(kept) => crate::report!("error: interrupted by {name} {kept}{removed}"),
-                    None if w.done.is_empty() => {
-                        crate::report!("error: interrupted by {name}; no output was finished")
-                    }
+                    None if w.done.is_empty() => crate::report!("error: interrupted by {name}"),
                     None => crate::report!(
                         "error: interrupted by {name}; removed the {} output file(s) this run wrote",
                         w.done.len()
