@@ -98,7 +98,7 @@ for bin in "$@"; do
   echo "== $i: $bin"
   "$bin" bench "$work/big.toml" --soak "$frames" --width 64 --height 64 --caches 1/32 \
     --virtual-ranks 4 --rank 1 -q --json > "$work/soak$i.json"
-  python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('soak: %d frames, RSS %.1f -> %.1f MiB, slope %.0f bytes a frame, GPU objects %s' % (r['frames'], r['rss_start_mib'], r['rss_end_mib'], r['bytes_per_frame'], 'flat' if r.get('gpu_objects_warm') == r.get('gpu_objects_end') else 'not counted' if 'gpu_objects_end' not in r else 'GREW'))" "$work/soak$i.json"
+  python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('soak: %d frames, RSS %.1f -> %.1f MiB, slope %.0f bytes a frame, GPU objects %s' % (r['frames'], r['rss_start_mib'], r['rss_end_mib'], r['bytes_per_frame'], 'not counted' if 'gpu_objects_end' not in r else 'flat' if r['gpu_objects_warm'] == r['gpu_objects_end'] else 'GREW'))" "$work/soak$i.json"
   rm -rf "$work/r"; mkdir "$work/r"
   rss_of "$work/rss" "$bin" render "$work/big.dcb" --width 64 --height 64 --frames 700 -o "$work/r/f.png"
   echo "render 700 frames replicated: RSS $(cat "$work/rss") KiB (frame 70, frame 699)"

@@ -12,6 +12,7 @@ pub mod cluster;
 pub mod colormap;
 pub mod dc;
 pub mod error;
+pub mod files;
 pub mod gpu;
 pub mod legend;
 pub mod mirror;
@@ -22,6 +23,7 @@ pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod shading;
+pub mod size;
 pub mod traces;
 
 pub use error::{Error, Result};

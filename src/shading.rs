@@ -7,8 +7,10 @@
 //! the sun, Russian roulette, a maximum depth).
 
 use crate::error::{Error, Result};
-use crate::gpu::layout::{self, MAX_LIGHTS, ShadeParams};
-use crate::scene::CameraBasis;
+
+/// Lights a render can take (`MAX_LIGHTS` in `shaders/shared/shading.wgsl`, which the layout
+/// test checks).
+pub const MAX_LIGHTS: usize = 4;
 
 #[derive(
     Clone,
@@ -222,7 +224,7 @@ fn finite_nonneg(v: [f32; 3]) -> bool {
     v.iter().all(|c| c.is_finite() && *c >= 0.0)
 }
 
-fn unit(v: [f32; 3]) -> Option<[f32; 3]> {
+pub fn unit(v: [f32; 3]) -> Option<[f32; 3]> {
     let l = v.iter().map(|c| c * c).sum::<f32>().sqrt();
     (v.iter().all(|c| c.is_finite()) && l > 0.0 && l.is_finite()).then(|| v.map(|c| c / l))
 }
@@ -333,11 +335,12 @@ impl Shading {
         }
     }
 
-    /// The lights a render uses: the given ones, or the default key light (shadows mode only).
-    pub fn effective_lights(&self, basis: &CameraBasis) -> Vec<Light> {
+    /// The lights a render uses: the given ones, or the default key light (shadows mode only),
+    /// towards `key_to` (`CameraBasis::key_light`).
+    pub fn effective_lights(&self, key_to: [f32; 3]) -> Vec<Light> {
         let given: Vec<Light> = self.lights.iter().flatten().copied().collect();
         if given.is_empty() && self.default_light {
-            let to = key_direction(basis);
+            let to = key_to;
             return vec![Light::Directional {
                 dir: to.map(|c| -c),
                 color: [0.9, 0.9, 0.9],
@@ -346,82 +349,45 @@ impl Shading {
         given
     }
 
-    fn sun_on(&self) -> bool {
+    /// Whether the sun shines (any of its colour above 0).
+    pub fn sun_on(&self) -> bool {
         self.sun.iter().any(|&c| c > 0.0)
     }
 
+    /// The number of lights a render uses (`effective_lights`).
+    pub fn light_count(&self) -> u32 {
+        let given = self.lights.iter().flatten().count() as u32;
+        if given == 0 && self.default_light {
+            1
+        } else {
+            given
+        }
+    }
+
     /// Secondary rays per pixel in one wave (0: no wave).
-    pub fn fan(&self, basis: &CameraBasis) -> u32 {
+    pub fn fan(&self) -> u32 {
         match self.mode {
             Mode::Cast => 0,
-            Mode::Shadows => self.effective_lights(basis).len() as u32,
+            Mode::Shadows => self.light_count(),
             Mode::Ao => self.ao_rays,
             Mode::Path => 1 + u32::from(self.sun_on()),
         }
     }
 
     /// Waves of secondary rays per sample (an upper bound for paths, which may end sooner).
-    pub fn waves(&self, basis: &CameraBasis) -> u32 {
+    pub fn waves(&self) -> u32 {
         match self.mode {
             Mode::Cast => 0,
             Mode::Path => self.max_depth,
-            _ => u32::from(self.fan(basis) > 0),
+            _ => u32::from(self.fan() > 0),
         }
-    }
-
-    /// The kernels' view of these settings for a camera.
-    pub fn gpu_params(&self, basis: &CameraBasis) -> ShadeParams {
-        let v4 = |v: [f32; 3], w: f32| [v[0], v[1], v[2], w];
-        let mut p = ShadeParams {
-            sky: v4(self.sky, 0.0),
-            mode: self.mode as u32,
-            fan: self.fan(basis),
-            ao_rays: self.ao_rays,
-            ao_distance: self.ao_distance.min(layout::FAR),
-            max_depth: self.max_depth,
-            rr_depth: self.rr_depth,
-            ambient: self.ambient,
-            any_hit: if self.any_hit {
-                layout::flags::ANY_HIT
-            } else {
-                0
-            },
-            ..ShadeParams::default()
-        };
-        let sun_to = match self.sun_dir.and_then(unit) {
-            Some(d) => d.map(|c| -c),
-            None => key_direction(basis),
-        };
-        p.sun_dir = v4(sun_to, 0.0);
-        p.sun = v4(self.sun, if self.sun_on() { 1.0 } else { 0.0 });
-        (p.offset_mode, p.epsilon) = match self.offset {
-            Offset::Bound => (0, 0.0),
-            Offset::Epsilon(e) => (1, e),
-        };
-        if self.mode == Mode::Shadows {
-            let lights = self.effective_lights(basis);
-            p.light_count = lights.len() as u32;
-            for (slot, l) in p.lights.iter_mut().zip(lights) {
-                *slot = match l {
-                    Light::Directional { dir, color } => layout::Light {
-                        pos: v4(unit(dir).unwrap_or([0.0, 0.0, 1.0]).map(|c| -c), 0.0),
-                        color: v4(color, 0.0),
-                    },
-                    Light::Point { pos, color } => layout::Light {
-                        pos: v4(pos, 1.0),
-                        color: v4(color, 0.0),
-                    },
-                };
-            }
-        }
-        p
     }
 }
 
-/// Unit direction towards the key light, from the camera's axes.
-fn key_direction(basis: &CameraBasis) -> [f32; 3] {
+/// Unit direction towards the key light, from the camera's axes (`CameraBasis::key_light`).
+pub fn key_direction(right: [f32; 3], up: [f32; 3], forward: [f32; 3]) -> [f32; 3] {
     let n = |v: [f32; 3]| unit(v).unwrap_or([0.0, 0.0, 1.0]);
-    let (r, u, f) = (n(basis.right), n(basis.up), n(basis.forward));
+    let (r, u, f) = (n(right), n(up), n(forward));
     let v: [f32; 3] =
         std::array::from_fn(|i| KEY_LIGHT[0] * r[i] + KEY_LIGHT[1] * u[i] + KEY_LIGHT[2] * f[i]);
     n(v)

@@ -65,9 +65,9 @@ pub struct Meta {
     pub attrs: super::AttrLayout,
 }
 
-/// Writes the block file through `output::write_atomic`: a failed write leaves no half file.
+/// Writes the block file through `files::write_atomic`: a failed write leaves no half file.
 pub fn write(path: &Path, blocks: &Blocks, meta: &Meta) -> Result<()> {
-    crate::output::write_atomic(path, |w| {
+    crate::files::write_atomic(path, |w| {
         let mut out = BlockWriter::start(
             w,
             path,
@@ -99,7 +99,7 @@ pub struct BlockWriter<'w> {
 impl<'w> BlockWriter<'w> {
     /// Writes the header and metadata of a file of `node_blocks` + `tri_blocks` blocks (and the
     /// attribute blocks `meta.attrs` declares) into `w`
-    /// (a file written by `output::write_atomic` for `path`, which errors name).
+    /// (a file written by `files::write_atomic` for `path`, which errors name).
     pub fn start(
         w: &'w mut BufWriter<File>,
         path: &Path,
@@ -378,7 +378,7 @@ impl DcbFile {
 impl DcbFile {
     /// What one rank keeps on its GPU without the cache, and the only blocks it reads: its own
     /// blocks by slot, then the replicated blocks it does not own.
-    pub fn read_resident(&self, ranks: crate::dc::Ranks) -> Result<Vec<u32>> {
+    pub fn read_resident(&self, ranks: crate::blocks::ranks::Ranks) -> Result<Vec<u32>> {
         let bw = self.format.words() as usize;
         let rows = ranks.resident_rows(self.count());
         let mut words = vec![0u32; rows as usize * bw];
@@ -440,7 +440,7 @@ mod tests {
         assert_eq!(f.meta, meta);
         assert_eq!(f.read_all(1).unwrap().words, blocks.words);
         // A rank reads its own blocks and the root, nothing else.
-        let r = crate::dc::Ranks::new(3, 2).unwrap();
+        let r = crate::blocks::ranks::Ranks::new(3, 2).unwrap();
         let words = f.read_resident(r).unwrap();
         let bw = blocks.format.words() as usize;
         let own: Vec<u32> = (0..blocks.count()).filter(|k| k % 3 == 2).collect();

@@ -17,6 +17,7 @@
 
 pub mod check;
 pub mod file;
+pub mod ranks;
 
 use crate::bvh::{Bvh, Node};
 use crate::error::{Error, Result};

@@ -185,7 +185,7 @@ impl Node {
 }
 
 /// The obvhs build presets we expose; `Fast` is the default, chosen by `dcrt bench --bvh-presets`
-/// (see README: build time against trace speed).
+/// (docs/benchmarks.md has build times beside trace speed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Preset {
     Fastest,

@@ -10,6 +10,7 @@ use super::startup::Image;
 use super::{Options, Roles};
 use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};
+use crate::files;
 use crate::gpu::tracer::ms;
 use crate::output;
 use mpi::topology::SimpleCommunicator;
@@ -185,7 +186,7 @@ impl<'a> Display<'a> {
             if !opts.display_bench || f + 1 == opts.frames {
                 let files = write_frame(&opts, f, buf, wire, legend.as_ref())?;
                 let files: Vec<&std::path::Path> = files.iter().map(|p| p.as_path()).collect();
-                output::keep_frame(f, &files);
+                files::keep_frame(f, &files);
             }
             if let Some(dir) = &opts.trace {
                 write_events(dir, f, rank, roles, events)?;
@@ -223,7 +224,7 @@ impl<'a> Display<'a> {
                 "cache": opts.cache.map(|c| format!("{:?} {:?} {:?}", c.size, c.map, c.replicate)),
                 "frames": self.report, "display_bench": bench,
             });
-            output::write_bytes(path, all.to_string().as_bytes())?;
+            files::write_bytes(path, all.to_string().as_bytes())?;
         }
         Ok(())
     }
@@ -242,7 +243,7 @@ fn summarize(f: u32, render: &[FrameReport], span_ms: f64, opts: &Options) {
         render.iter().map(|r| r.stats.fault_rounds).sum::<u64>(),
         render.iter().map(|r| r.stats.fetched_blocks).sum::<u64>(),
         render.iter().map(|r| r.stats.fetch_seconds).sum::<f64>() * 1e3,
-        output::numbered(&opts.output, f, opts.frames).display()
+        files::numbered(&opts.output, f, opts.frames).display()
     );
 }
 
@@ -254,7 +255,7 @@ fn write_frame(
     wire: Wire,
     legend: Option<&crate::legend::Legend>,
 ) -> Result<Vec<std::path::PathBuf>> {
-    let png = output::numbered(&opts.output, f, opts.frames);
+    let png = files::numbered(&opts.output, f, opts.frames);
     match wire {
         Wire::Rgb8 => {
             let (w, h) = (buf.width, buf.height);
@@ -271,7 +272,7 @@ fn write_frame(
             output::write_png_legend(&png, &frame, opts.exposure, legend)?;
             let mut files = vec![png];
             if let Some(exr) = &opts.exr {
-                let exr = output::numbered(exr, f, opts.frames);
+                let exr = files::numbered(exr, f, opts.frames);
                 output::write_exr(&exr, &frame, &opts.aovs)?;
                 files.push(exr);
             }

@@ -9,7 +9,7 @@ use super::pixels::{Packer, Wire};
 use super::protocol::{Ask, FrameReport, Tag, Work, malformed};
 use super::startup::RenderSetup;
 use super::{Options, Roles, rma};
-use crate::dc::Ranks;
+use crate::blocks::ranks::Ranks;
 use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};

@@ -3,7 +3,8 @@
 //! would never join. A disagreement is reported by the rank it concerns.
 
 use super::{Options, Roles};
-use crate::dc::{CacheMap, CacheSize, Ranks};
+use crate::blocks::ranks::Ranks;
+use crate::dc::{CacheMap, CacheSize};
 use crate::error::Result;
 use crate::gpu::Gpu;
 use crate::gpu::tracer::Settings;
@@ -182,7 +183,6 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     report[FINGERPRINT].copy_from_slice(&[fingerprint as u32, (fingerprint >> 32) as u32]);
     report[CAMERA] = digest(&loaded.camera);
     report[MESHES] = digest(&(&loaded.meshes, loaded.depth, loaded.triangles));
-    let basis = loaded.camera.basis(image.width, image.height);
     Ok(Opened {
         image,
         report,
@@ -195,7 +195,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
                 shading,
                 ..opts.settings
             }
-            .for_image(image.width, image.height, &basis),
+            .for_image(image.width, image.height),
         })),
     })
 }

@@ -7,9 +7,10 @@
 //! round. Every round with faults so loads at least one block, and a single-line cache still
 //! finishes.
 
+use super::NONE;
 use super::trace::Fault;
-use super::{CacheMap, Ranks, cache_line};
-use crate::gpu::layout::NONE;
+use super::{CacheMap, cache_line};
+use crate::blocks::ranks::Ranks;
 
 /// A rank's cache: what each line holds and the row of every block on its GPU.
 #[derive(Clone, Debug)]

@@ -2,9 +2,9 @@
 //! ranks and (in cluster mode) one-sided MPI. A round's faulted blocks are fetched in one call, so
 //! a source can serve them in one epoch.
 
-use super::Ranks;
 use crate::blocks::Blocks;
 use crate::blocks::file::DcbFile;
+use crate::blocks::ranks::Ranks;
 use crate::error::{Error, Result};
 
 pub trait BlockSource {

@@ -187,7 +187,7 @@ impl FrameTrace {
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = Self::file_name(dir, self.summary.frame, self.summary.rank);
         let io = |e| Error::io(&path, e);
-        crate::output::write_record(&path, |w| {
+        crate::files::write_record(&path, |w| {
             for r in &self.rounds {
                 serde_json::to_writer(&mut *w, &Record::Round(r))
                     .map_err(|e| Error::Invalid(e.to_string()))?;

@@ -222,7 +222,7 @@ pub struct Light {
 }
 
 /// Lights a pipeline can take (`MAX_LIGHTS` in `shaders/shared/shading.wgsl`).
-pub const MAX_LIGHTS: usize = 4;
+pub const MAX_LIGHTS: usize = crate::shading::MAX_LIGHTS;
 
 /// `ShadeParams` in `shaders/shared/shading.wgsl`: what the shade, spawn and gather kernels read.
 #[repr(C)]
@@ -251,7 +251,8 @@ pub struct ShadeParams {
 }
 const _: () = assert!(std::mem::size_of::<ShadeParams>() == 224);
 
-pub const NONE: u32 = u32::MAX;
+/// No block, no row, no hit (WGSL's `NONE`): the distributed cache's empty entry.
+pub const NONE: u32 = crate::dc::NONE;
 /// The kernels' finite stand-in for an unbounded ray (`FAR` in `shaders/shared/ray.wgsl`):
 /// finite, because WGSL promises nothing for infinities.
 pub const FAR: f32 = 3.0e38;

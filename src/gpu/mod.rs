@@ -9,6 +9,7 @@ pub mod layout;
 pub mod probe;
 mod rounds;
 pub mod row_table;
+pub mod shade_params;
 pub mod shaders;
 mod store;
 pub mod tracer;

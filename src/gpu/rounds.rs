@@ -712,8 +712,7 @@ fn add_batch_stats(stats: &mut FrameStats, s: &Stats, rounds: u32) {
 /// for it left a round of a few hundred rays after every batch (rm 3M at 1024x1024, rank 0 of 8,
 /// nodes replicated, 1/8: 14.0 fault rounds a frame with the wait, 12.0 without). Starting where
 /// the batches in flight resume lets a batch take about one round of its own where the image is
-/// sparse (1/32, nodes replicated: 43.5 fault rounds a warm frame without, 38.3 with; README,
-/// Benchmarks).
+/// sparse (1/32, nodes replicated: 43.5 fault rounds a warm frame without, 38.3 with; docs/notes).
 fn next_batch_may_start(
     busy: bool,
     in_tail: bool,
@@ -730,7 +729,7 @@ fn next_batch_may_start(
 /// only, a round's leftovers are the last faults of batches that are mostly done, and waiting
 /// for them alone took a round of a few dozen blocks several times a frame. With only the root
 /// replicated the leftovers are node blocks on chains of faults, and a new batch's blocks evict
-/// those the chains need next (README, Benchmarks).
+/// those the chains need next (docs/notes).
 fn few_left_waiting(waiting: u32, lines: u32, nodes_resident: bool) -> bool {
     waiting == 0
         || (nodes_resident && u64::from(waiting) * u64::from(WAIT_SHARE) <= u64::from(lines))
@@ -900,7 +899,7 @@ impl LaneRun {
 ///   the lines beside the rounds of those before it gets all its blocks at once.
 ///
 /// rm 3M at 1024x1024, rank 0 of 8, 8-frame orbits, mean fault rounds of frames 2-7, two runs
-/// each (README, Benchmarks): at 1/32 with 6 spares, 1.2 took 35.3-35.7 and 0.85 33.5-33.8 with
+/// each (docs/notes): at 1/32 with 6 spares, 1.2 took 35.3-35.7 and 0.85 33.5-33.8 with
 /// the nodes replicated; at 1/8 with 2 spares, 1.2 took 11.2-11.3 and 0.85 12.3-12.5.
 fn fill_share(spares: usize) -> f64 {
     if spares >= MANY_SPARES { 0.85 } else { 1.2 }

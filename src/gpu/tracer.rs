@@ -14,11 +14,12 @@ use super::layout::{
 };
 use super::shaders::Store;
 use super::store::{BlockStore, Rows};
+use crate::blocks::ranks::Ranks;
 use crate::blocks::{AttrLayout, Format};
+use crate::dc::CacheMap;
 use crate::dc::policy::CachePolicy;
 use crate::dc::source::BlockSource;
 use crate::dc::trace::FrameTrace;
-use crate::dc::{CacheMap, Ranks};
 use crate::error::{Error, Result};
 use crate::mirror::tiles::{Tiling, tile_corner, z_x};
 use crate::reference::Ray;
@@ -82,11 +83,11 @@ pub struct Settings {
 
 impl Settings {
     /// These settings with batches of at most the rays a `width`x`height` frame has at once (a
-    /// ray per pixel, or a wave's fan of secondary rays per pixel, for `basis`'s lights): a
-    /// lane's memory follows its batch, and the default batch is far larger than a small image.
-    pub fn for_image(self, width: u32, height: u32, basis: &CameraBasis) -> Settings {
+    /// ray per pixel, or a wave's fan of secondary rays per pixel): a lane's memory follows its
+    /// batch, and the default batch is far larger than a small image.
+    pub fn for_image(self, width: u32, height: u32) -> Settings {
         let tiles = u64::from(width.div_ceil(TILE)) * u64::from(height.div_ceil(TILE));
-        let fan = u64::from(self.shading.fan(basis).max(1));
+        let fan = u64::from(self.shading.fan().max(1));
         let rays = (tiles * u64::from(TILE_RAYS) * fan).min(u64::from(self.max_batch_rays));
         Settings {
             max_batch_rays: rays as u32,
@@ -817,9 +818,9 @@ impl<'g> Tracer<'g> {
         let plan = self.begin_rect(basis, background, rect)?;
         let (tiles, tiles_per_batch) = (plan.tiles, plan.per_batch);
         let sh = self.settings.shading;
-        let (fan, waves) = (sh.fan(basis), sh.waves(basis));
+        let (fan, waves) = (sh.fan(), sh.waves());
         let passes = u64::from(tiles.div_ceil(tiles_per_batch)) * u64::from(sh.spp);
-        if self.overlaps(basis) {
+        if self.overlaps() {
             let mut one = OneRect {
                 rect: Some(rect),
                 pixels: None,
@@ -895,7 +896,7 @@ impl<'g> Tracer<'g> {
         source: &mut dyn RectSource,
         stats: &mut FrameStats,
     ) -> Result<()> {
-        if self.overlaps(basis) {
+        if self.overlaps() {
             return self.render_overlapped(basis, background, source, None, stats);
         }
         let mut rects = 0;
@@ -915,9 +916,9 @@ impl<'g> Tracer<'g> {
 
     /// Whether batches overlap: spare lanes exist, batches are known to fit the cache, and a
     /// batch is one trace (one sample, no secondary rays).
-    fn overlaps(&self, basis: &CameraBasis) -> bool {
+    fn overlaps(&self) -> bool {
         let sh = self.settings.shading;
-        !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && sh.waves(basis) == 0
+        !self.spares.is_empty() && self.batches_fit && sh.spp == 1 && sh.waves() == 0
     }
 
     /// Checks a rectangle and sets `Params` for it (camera, image, rectangle, shading; also the
@@ -943,8 +944,9 @@ impl<'g> Tracer<'g> {
         self.params.width = w;
         self.params.height = h;
         let sh = self.settings.shading;
-        let fan = sh.fan(basis);
-        self.gpu.write(&self.shade_buf, &sh.gpu_params(basis));
+        let fan = sh.fan();
+        self.gpu
+            .write(&self.shade_buf, &ShadeParams::new(&sh, basis));
         self.params.seed = sh.seed;
         self.params.spp = sh.spp;
         self.params.sample = sh.first_sample;
@@ -1255,34 +1257,18 @@ mod tests {
 
     #[test]
     fn a_batch_holds_at_most_the_rays_of_its_image() {
-        let basis = |w, h| CameraBasis {
-            origin: [0.0, 0.0, 5.0],
-            forward: [0.0, 0.0, -1.0],
-            right: [1.0, 0.0, 0.0],
-            up: [0.0, 1.0, 0.0],
-            width: w,
-            height: h,
-            parallel: false,
-        };
         let cast = Settings::default();
         // A ray a pixel, in whole tiles: 65x64 pixels are 9x8 tiles.
-        assert_eq!(cast.for_image(64, 64, &basis(64, 64)).max_batch_rays, 4096);
-        assert_eq!(
-            cast.for_image(65, 64, &basis(65, 64)).max_batch_rays,
-            72 * TILE_RAYS
-        );
+        assert_eq!(cast.for_image(64, 64).max_batch_rays, 4096);
+        assert_eq!(cast.for_image(65, 64).max_batch_rays, 72 * TILE_RAYS);
         // A wave of ambient occlusion puts `ao_rays` secondary rays a pixel in the batch.
         let mut ao = cast;
         ao.shading.mode = crate::shading::Mode::Ao;
         let fan = ao.shading.ao_rays;
-        assert_eq!(
-            ao.for_image(64, 64, &basis(64, 64)).max_batch_rays,
-            4096 * fan
-        );
+        assert_eq!(ao.for_image(64, 64).max_batch_rays, 4096 * fan);
         // Never more than the settings allow.
         assert_eq!(
-            cast.for_image(4096, 4096, &basis(4096, 4096))
-                .max_batch_rays,
+            cast.for_image(4096, 4096).max_batch_rays,
             cast.max_batch_rays
         );
     }

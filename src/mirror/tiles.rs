@@ -9,8 +9,7 @@ pub const TILE: u32 = 8;
 
 /// The widest batch of whole rows, as width over height (`Tiling::new`). rm 3M at 1024x1024,
 /// rank 0 of 8, `lru`: at a 1/8 cache (rows 4.8 times wider than tall) rows took fewer fault
-/// rounds than square patches, at 1/32 (19 times) patches fetched a fifth less (README,
-/// Benchmarks).
+/// rounds than square patches, at 1/32 (19 times) patches fetched a fifth less (docs/notes).
 const STRIPE_ASPECT: u64 = 8;
 
 /// How a rectangle's tiles are ordered: its size in tiles and the band width (`Params::tiles_x`,

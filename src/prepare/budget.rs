@@ -30,7 +30,7 @@ impl Budget {
     /// memory.
     pub fn parse(text: &str) -> Result<Budget> {
         let bytes =
-            memory::parse_size(text).map_err(|e| Error::Invalid(format!("--memory {e}")))?;
+            crate::size::parse_size(text).map_err(|e| Error::Invalid(format!("--memory {e}")))?;
         Budget::of(bytes, memory::total())
             .map_err(|e| Error::Invalid(format!("--memory '{}': {e}", text.trim())))
     }

@@ -9,7 +9,7 @@
 //! order spilled, and the block file is written from those, node blocks first (the joined tree's
 //! numbering), then the parts' triangles in tree order. Temporary files live in a `Scratch`
 //! directory beside the output, removed on success, failure and interruption; the block file is
-//! written under a temporary name and renamed when complete (`output::write_atomic`).
+//! written under a temporary name and renamed when complete (`files::write_atomic`).
 
 pub mod budget;
 pub mod partition;
@@ -20,7 +20,7 @@ use crate::blocks::file::{BlockWriter, Meta};
 use crate::bvh::join::{Joined, PartShape, Run, Top};
 use crate::bvh::{Built, Node, Preset};
 use crate::error::{Error, Result};
-use crate::output::Scratch;
+use crate::files::Scratch;
 use crate::progress::Progress;
 use crate::render::Prepared;
 use crate::scene::stream::Sink;
@@ -318,7 +318,7 @@ fn out_of_core(
         u64::from(node_blocks) + u64::from(tri_blocks),
         "writing blocks",
     );
-    crate::output::write_atomic(output, |w| {
+    crate::files::write_atomic(output, |w| {
         let mut out = BlockWriter::start(w, output, format, node_blocks, tri_blocks, &meta)?;
         write_blocks(&mut out, format, &joined, &parts, &built, &bar)?;
         out.finish()

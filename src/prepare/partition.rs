@@ -15,7 +15,7 @@ use super::budget::Budget;
 use super::spill::{Reader, Record, Triangle, Writer};
 pub use crate::bvh::join::Cuts;
 use crate::error::Result;
-use crate::output::Scratch;
+use crate::files::Scratch;
 use indicatif::ProgressBar;
 use obvhs::aabb::Aabb;
 use std::path::PathBuf;

@@ -25,7 +25,7 @@ pub fn reference_image(
         return None;
     }
     let (w, h) = (basis.width, basis.height);
-    let lights = shading.effective_lights(basis);
+    let lights = shading.effective_lights(basis.key_light());
     let sample = shading.first_sample;
     let px: Vec<[f32; 3]> = (0..w * h)
         .into_par_iter()

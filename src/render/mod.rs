@@ -5,10 +5,11 @@ pub mod frames;
 pub mod memory;
 
 use crate::blocks::file::{DcbFile, Meta};
+use crate::blocks::ranks::Ranks;
 use crate::blocks::{Blocks, Format};
 use crate::bvh::{Bvh, Preset};
 use crate::dc::source::{LocalFile, VirtualRanks};
-use crate::dc::{CacheMap, CacheSize, Ranks, Replicate};
+use crate::dc::{CacheMap, CacheSize, Replicate};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::gpu::tracer::{DcSetup, GpuModel, Meshes, Settings, Tracer};

@@ -129,6 +129,11 @@ impl Camera {
 }
 
 impl CameraBasis {
+    /// Unit direction towards the default key light and the default sun, fixed to the camera.
+    pub fn key_light(&self) -> [f32; 3] {
+        crate::shading::key_direction(self.right, self.up, self.forward)
+    }
+
     /// Pixel (x, y)'s ray (origin, normalized direction), computed in f64 from the f32 basis: the
     /// reference the GPU's f32 ray generation is compared against, for either projection.
     pub fn pixel_ray(&self, x: u32, y: u32) -> ([f64; 3], [f64; 3]) {

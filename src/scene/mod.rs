@@ -536,7 +536,7 @@ pub fn check_regular(path: &Path, what: &str) -> Result<()> {
             None,
             format!(
                 "is {}, not a regular file: a {what} must be a file",
-                crate::output::kind_of(&m)
+                crate::files::kind_of(&m)
             ),
         ));
     }

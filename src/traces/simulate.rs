@@ -35,7 +35,7 @@
 //! render ranks: 90, 157, 260 here, R^1.5 to within 5%, each holding fewer rays). The traces of
 //! one run cannot tell this; with a cache, shared costs per pixel grow as `(R' / R)^w`, `w` the
 //! model's `work_exponent`. `dcrt simulate` takes 0.5: fitted on this project's 2-core machine
-//! to runs at 4 ranks predicting 5 and 6 (shared memory and TCP; README, Traces, has the table
+//! to runs at 4 ranks predicting 5 and 6 (shared memory and TCP; docs/benchmarks.md has the table
 //! and how it was fitted); 0 keeps the work per pixel as traced. Replicated runs (no cache
 //! lookups) do not fault and keep it.
 //!

@@ -2,8 +2,9 @@
 //! `mirror` kernel: integer functions bit for bit, float ones within the precision WGSL allows.
 
 use crate::common::*;
+use dcrt::blocks::ranks::Ranks;
 use dcrt::bvh::Node;
-use dcrt::dc::{CacheMap, Ranks, cache_line};
+use dcrt::dc::{CacheMap, cache_line};
 use dcrt::gpu::layout::{MirrorCase, Params, flags};
 use dcrt::gpu::probe::run_mirror;
 use dcrt::mirror::colormap::{bin, colormap, srgb_color};

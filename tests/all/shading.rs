@@ -197,7 +197,7 @@ fn against_reference(sh: Shading) {
     // term): there must be many, and the GPU must agree on nearly all of them.
     // (A shadowed pixel gets less than it would if every light it faces were visible.)
     let basis = cam.basis(w, h);
-    let lights = sh.effective_lights(&basis);
+    let lights = sh.effective_lights(basis.key_light());
     let unoccluded = |i: usize, g: &dcrt::gpu::layout::Pixel| -> f64 {
         let d = basis.dir(i as u32 % w, i as u32 / w);
         let n = g.normal.map(f64::from);

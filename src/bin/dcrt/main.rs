@@ -300,7 +300,7 @@ impl DcArgs {
                 self.rank
             );
         }
-        dcrt::dc::Ranks::new(n, self.rank)?;
+        dcrt::blocks::ranks::Ranks::new(n, self.rank)?;
         Ok(Some(DcOptions {
             ranks: n,
             rank: self.rank,
@@ -492,7 +492,7 @@ fn main() -> ExitCode {
         Some(k) if k > 1 => std::time::Duration::from_millis(500),
         _ => std::time::Duration::ZERO,
     };
-    if let Err(e) = dcrt::output::remove_on_interrupt(grace) {
+    if let Err(e) = dcrt::files::remove_on_interrupt(grace) {
         dcrt::report!("error: {e}");
         return ExitCode::FAILURE;
     }
@@ -598,6 +598,6 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
             .transpose()?,
     };
     // A failed job leaves none of the frames this rank wrote, as in one process.
-    dcrt::cluster::run(&opts).inspect_err(|_| render::say_kept(dcrt::output::remove_written()))?;
+    dcrt::cluster::run(&opts).inspect_err(|_| render::say_kept(dcrt::files::remove_written()))?;
     Ok(())
 }

@@ -17,7 +17,7 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
     };
     let format = Format::new(a.block_size)?;
     let inputs = Scene::input_files(&a.scene)?;
-    dcrt::output::check_outputs(&[("block file", &a.output, 1)], &inputs)?;
+    dcrt::files::check_outputs(&[("block file", &a.output, 1)], &inputs)?;
     let scene = Scene::load(&a.scene)?;
     let o = Options {
         preset: a.bvh_preset,

@@ -5,6 +5,7 @@ use crate::checks::check_budget;
 use crate::{RenderArgs, render_cluster, settings};
 use anyhow::{Context, Result, bail};
 use dcrt::blocks::Format;
+use dcrt::files;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::Settings;
 use dcrt::output;
@@ -45,7 +46,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     }
     let mut inputs = Scene::input_files(&a.scene)?;
     inputs.extend(a.camera.clone());
-    output::check_outputs(&outputs, &inputs)?;
+    files::check_outputs(&outputs, &inputs)?;
     if let Some(dir) = &a.trace {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
@@ -75,7 +76,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
 /// atomically; if the run fails, the outputs of the frame it was on are removed and the
 /// finished frames kept, so a failed run leaves nothing half done and loses no finished work.
 fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
-    frames_of(a, format).inspect_err(|_| say_kept(output::remove_written()))
+    frames_of(a, format).inspect_err(|_| say_kept(files::remove_written()))
 }
 
 /// After a failure: what the run keeps, if anything.
@@ -109,7 +110,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
         shading,
         ..settings(&a.gpu)
     }
-    .for_image(width, height, &loaded.camera.basis(width, height));
+    .for_image(width, height);
     let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
     match &dc {
         Some(o) => {
@@ -165,7 +166,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
         height,
         bg,
         &mut |i, frame, stats| {
-            let numbered = |p: &Path| output::numbered(p, i, a.frames);
+            let numbered = |p: &Path| files::numbered(p, i, a.frames);
             // Kept only for --stats, and as the stats themselves: a JSON value per frame was
             // about 4 KiB, a leak in a long run (docs/ARCHITECTURE.md, Frame loop).
             if a.cluster.stats.is_some() {
@@ -181,7 +182,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
                 .into_iter()
                 .flatten()
                 .collect();
-            output::keep_frame(i, &files);
+            files::keep_frame(i, &files);
             frames_done.set(i + 1);
             say(
                 &bar,
@@ -224,7 +225,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
             .collect();
         let all =
             serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": frames});
-        output::write_bytes(path, all.to_string().as_bytes())?;
+        files::write_bytes(path, all.to_string().as_bytes())?;
     }
     Ok(())
 }

@@ -117,7 +117,7 @@ pub fn run(
     // of its first run (`block_count_frame`) and its lanes' bytes. Each configuration's frame
     // is rendered right after the replicated model's same frame (`paired`), so that a ratio
     // compares frames seconds apart: over a run, this host's speed drifts by more than most
-    // changes (README, Benchmarks). The replicated row holds every replicated orbit rendered.
+    // changes (docs/notes). The replicated row holds every replicated orbit rendered.
     let size = (a.width, a.height);
     let mut runs: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
     let mut paired: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];

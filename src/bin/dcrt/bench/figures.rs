@@ -11,9 +11,10 @@ use super::MODELS;
 use crate::BenchArgs;
 use anyhow::{Context, Result, anyhow, bail};
 use dcrt::blocks::Format;
+use dcrt::blocks::ranks::Ranks;
 use dcrt::cluster::Roles;
 use dcrt::cluster::bench::{Plan, Transport};
-use dcrt::dc::{CacheSize, Ranks};
+use dcrt::dc::CacheSize;
 use dcrt::progress::{Progress, say};
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
@@ -348,7 +349,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         });
     }
     let json = out.join("figures.json");
-    dcrt::output::write_bytes(&json, serde_json::to_string_pretty(&figs)?.as_bytes())?;
+    dcrt::files::write_bytes(&json, serde_json::to_string_pretty(&figs)?.as_bytes())?;
     draw_rates(&figs, &out.join("figure6.png"), &font)?;
     draw_memory(&figs, &out.join("figure7.png"), &font)?;
     draw_display(&figs, &out.join("figure8.png"), &font)?;

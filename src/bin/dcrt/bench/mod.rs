@@ -1,4 +1,4 @@
-//! `dcrt bench`: the measurements behind the README's figures. Primary-ray throughput per BVH
+//! `dcrt bench`: the measurements behind docs/benchmarks.md. Primary-ray throughput per BVH
 //! preset and block store (`trace`), the distributed-cache sweep (`dc`), shading time against
 //! error (`shading`), cluster jobs under mpirun (`cluster`), and the mesh loaders' fuzzing
 //! (`fuzz`).
