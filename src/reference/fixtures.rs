@@ -1,7 +1,8 @@
 //! Test fixtures of the reference tracer: a small deterministic generator, random triangle
 //! soups and rays, and the brute-force loop over all triangles that the BVH must reproduce.
 
-use super::{Hit, Ray, Reference, intersect_triangle, sub, to_f64_tri};
+use super::{Hit, Reference, intersect_triangle, sub, to_f64_tri};
+use crate::scene::ray::Ray;
 
 /// SplitMix64.
 pub(super) struct Rng(pub(super) u64);

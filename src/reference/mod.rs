@@ -38,23 +38,11 @@ mod watertight;
 
 pub use watertight::intersect_triangle;
 
+use crate::scene::ray::Ray;
 use bvh::{Aabb, Node, NodePair, PrimRef, build_bvh};
 use exact::{triangle_is_hittable, triangle_normal};
 use rayon::prelude::*;
 use watertight::PreparedRay;
-
-/// A ray: origin and direction in f32 as the GPU gets them (the direction need not be unit).
-///
-/// Hits are reported at `origin + t * dir` for `t` in `(0, tmax]` ([`Reference::closest_hit`]) or
-/// `(0, tmax)` ([`Reference::any_hit`]); `t` is in units of `dir`'s length. A ray whose origin or
-/// direction has a NaN or infinite component, whose direction is zero, or whose `tmax` is NaN or
-/// not positive hits nothing. `tmax` may be `f32::INFINITY`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Ray {
-    pub origin: [f32; 3],
-    pub dir: [f32; 3],
-    pub tmax: f32,
-}
 
 /// The closest intersection of a ray.
 #[derive(Clone, Copy, Debug, PartialEq)]

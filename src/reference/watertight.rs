@@ -3,7 +3,8 @@
 
 use super::bvh::Node;
 use super::exact::triangle_is_hittable;
-use super::{PAD_REL, Ray, TFAR_SCALE, max_abs, sub};
+use super::{PAD_REL, TFAR_SCALE, max_abs, sub};
+use crate::scene::ray::Ray;
 
 /// Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013) in f64; returns (t, u, v) with t
 /// in (0, tmax].

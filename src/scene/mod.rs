@@ -10,6 +10,7 @@ pub mod mesh;
 pub mod obj;
 pub mod ply;
 pub mod pvcc;
+pub mod ray;
 pub mod stl;
 pub mod stream;
 mod strict;

@@ -5,8 +5,9 @@ use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::layout::Pixel;
 use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
-use dcrt::reference::{Hit, Ray, Reference};
+use dcrt::reference::{Hit, Reference};
 use dcrt::render::Prepared;
+use dcrt::scene::ray::Ray;
 use dcrt::scene::{Camera, Model, Scene};
 use std::path::{Path, PathBuf};
 

@@ -8,8 +8,9 @@ use dcrt::bvh::{Bvh, INNER, Node};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::tracer::{GpuModel, MAX_STACK, Meshes, RayHit, Settings, Tracer};
 use dcrt::mirror::offset::offset_ray;
-use dcrt::reference::{Hit, Ray, Reference};
+use dcrt::reference::{Hit, Reference};
 use dcrt::scene::Model;
+use dcrt::scene::ray::Ray;
 use std::time::Duration;
 
 type Tri = [[f32; 3]; 3];

@@ -5,8 +5,9 @@
 
 use crate::common::*;
 use dcrt::gpu::tracer::Settings;
-use dcrt::reference::{Ray, Reference};
+use dcrt::reference::Reference;
 use dcrt::render::Prepared;
+use dcrt::scene::ray::Ray;
 use dcrt::scene::{Camera, Model};
 use dcrt::shading::{Light, Mode, Shading};
 
