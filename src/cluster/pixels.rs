@@ -3,7 +3,7 @@
 //! display copies them into the frame on several threads. RGB8 (3 B a pixel, already sRGB as
 //! the PNG stores it) by default; whole `Pixel`s (32 B) when the frame goes to EXR.
 
-use super::protocol::{Tag, malformed};
+use super::protocol::{FRAME_HEADER, Tag, malformed};
 use crate::error::{Error, Result};
 use crate::gpu::layout::Pixel;
 use crate::gpu::tracer::{Frame, Rect};
@@ -37,7 +37,6 @@ impl Wire {
     }
 }
 
-const HEADER: usize = 4;
 const RECORD: usize = 16;
 
 /// Packs tiles into messages of about `target` bytes; a tile bigger than that is cut into bands
@@ -56,7 +55,7 @@ impl Packer {
         Packer {
             wire,
             exposure,
-            target: target.max(HEADER + RECORD + 64 * wire.bytes()),
+            target: target.max(FRAME_HEADER + RECORD + 64 * wire.bytes()),
             frame: 0,
             buf: Vec::new(),
         }
@@ -94,7 +93,7 @@ impl Packer {
                 self.buf.extend_from_slice(&frame.to_le_bytes());
             }
             let room = self.target.saturating_sub(self.buf.len() + RECORD) / row;
-            if room == 0 && self.buf.len() > HEADER {
+            if room == 0 && self.buf.len() > FRAME_HEADER {
                 full.extend(self.flush());
                 continue;
             }
@@ -117,13 +116,6 @@ impl Packer {
     pub fn flush(&mut self) -> Option<Vec<u8>> {
         (!self.buf.is_empty()).then(|| std::mem::take(&mut self.buf))
     }
-}
-
-/// The frame number a pixel message (or any message that starts with one) is for; `None` when
-/// it is too short.
-pub fn message_frame(msg: &[u8]) -> Option<u32> {
-    msg.get(..HEADER)
-        .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
 }
 
 /// One frame being assembled: a lock per row, so copy threads write disjoint rows in parallel.
@@ -152,7 +144,7 @@ impl FrameBuf {
     pub fn copy(&self, from: u32, msg: &[u8]) -> Result<u64> {
         let bpp = self.wire.bytes();
         let bad = |what: &str| malformed(Tag::Pixels, from, what);
-        let mut at = HEADER;
+        let mut at = FRAME_HEADER;
         let mut pixels = 0u64;
         while at < msg.len() {
             let head = msg
@@ -306,6 +298,7 @@ impl Drop for Copiers {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cluster::protocol::message_frame;
 
     fn pixel(x: u32, y: u32) -> Pixel {
         Pixel {

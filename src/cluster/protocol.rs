@@ -15,10 +15,19 @@
 //! Decoding checks only the layout; a malformed message is an `Error::Protocol` that names its
 //! tag and sender.
 
-use super::pixels::message_frame;
 use crate::error::{Error, Result};
 use crate::gpu::tracer::Rect;
 use serde::{Deserialize, Serialize};
+
+/// Bytes of the frame number that starts every `PIXELS` and `DONE` message.
+pub const FRAME_HEADER: usize = 4;
+
+/// The frame number a pixel message (or any message that starts with one) is for; `None` when
+/// it is too short.
+pub fn message_frame(msg: &[u8]) -> Option<u32> {
+    msg.get(..FRAME_HEADER)
+        .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
+}
 
 /// A message's MPI tag.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

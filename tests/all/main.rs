@@ -12,6 +12,7 @@ mod color;
 mod common;
 mod convergence;
 mod dc;
+mod docs;
 mod frames;
 mod gpu_vs_cpu;
 mod layout;

@@ -2,6 +2,7 @@
 //! is handed on as soon as its predecessors are: appended to the mesh, its seam vertices
 //! resolved, or passed on as a piece of its own (`stream`).
 
+use super::chunk::{ChunkOut, TAG};
 use super::march::{Plane, eval_plane, march_layer, scan_cross, scan_plane};
 use super::tables::tables;
 use super::{ColumnField, Grid};
@@ -9,8 +10,6 @@ use crate::error::{Error, Result};
 use crate::scene::mesh::Mesh;
 use std::sync::{Condvar, Mutex};
 
-/// Marks a vertex index that belongs to the next chunk's first plane.
-pub(super) const TAG: u32 = 1 << 31;
 /// Bytes per triangle of a finished chunk: 12 of indices, about 6 of positions, and its piece.
 const CHUNK_BYTES_PER_TRIANGLE: f64 = 20.0;
 /// Finished chunks held at most, in bytes (besides each worker's own).
@@ -46,38 +45,6 @@ impl Work {
             lt_nz: mask(grid.nz),
             or: vec![0; words],
             and: vec![0; words],
-        }
-    }
-}
-
-#[derive(Default)]
-pub(super) struct ChunkOut {
-    pub(super) positions: Vec<[f32; 3]>,
-    pub(super) triangles: Vec<[u32; 3]>,
-    /// Vertices on the first plane (numbered first, in scan order).
-    pub(super) first_plane: u32,
-    /// The vertices on the next chunk's first plane, which it owns, in its numbering: tagged
-    /// index `TAG | i` is `far[i]`.
-    pub(super) far: Vec<[f32; 3]>,
-    pub(super) count: u64,
-}
-
-impl ChunkOut {
-    /// The chunk's triangles as a mesh of their own: its vertices, then its copies of the next
-    /// chunk's.
-    fn piece(mut self) -> Mesh {
-        let own = self.positions.len() as u32;
-        for t in &mut self.triangles {
-            for v in t {
-                if *v & TAG != 0 {
-                    *v = own + (*v & !TAG);
-                }
-            }
-        }
-        self.positions.extend_from_slice(&self.far);
-        Mesh {
-            positions: self.positions,
-            triangles: self.triangles,
         }
     }
 }

@@ -2,7 +2,7 @@
 //! grid edge the surface crosses (welded through per-plane edge-index arrays), and the triangles
 //! of the cells the surface passes through.
 
-use super::chunks::{ChunkOut, TAG};
+use super::chunk::{ChunkOut, TAG};
 use super::tables::Tables;
 use super::{ColumnField, Grid};
 

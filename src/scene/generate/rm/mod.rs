@@ -32,6 +32,7 @@
 //! `march`: the extraction of one layer of cells; `chunks`: the layers in chunks on worker
 //! threads, stitched in order into the mesh or handed on one by one (`rm_pieces`).
 
+mod chunk;
 mod chunks;
 mod field;
 mod march;
