@@ -10,15 +10,12 @@ mod render;
 mod simulate;
 mod trace;
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use clap::{Args, Parser, Subcommand};
-use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
-use dcrt::dc::{CacheMap, CacheSize, Replicate};
+use dcrt::dc::{CacheMap, Replicate};
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, FaultMode, OverlapMode, Settings};
-use dcrt::output::Aov;
-use dcrt::render::DcOptions;
 use dcrt::shading::{Mode, Overrides, Sampler, Shading};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,7 +34,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene to PNG (and EXR).
-    Render(RenderArgs),
+    Render(render::RenderArgs),
     /// Show the GPU adapters, the one dcrt would use, its limits and features; or, given a
     /// mesh file, its points, triangles, bounds and data arrays (what `color_by` can name).
     Info {
@@ -48,33 +45,13 @@ enum Command {
         adapter: Option<String>,
     },
     /// Build the BVH and blocks once and write them to a block file (.dcb).
-    Prepare(PrepareArgs),
+    Prepare(prepare::PrepareArgs),
     /// Measure BVH build time and primary-ray throughput.
     Bench(BenchArgs),
     /// Read trace directories: summary, Perfetto timeline, plot.
     Trace(trace::TraceArgs),
     /// Predict frame times at K ranks from a cluster run's traces.
     Simulate(simulate::SimulateArgs),
-}
-
-#[derive(Args)]
-struct PrepareArgs {
-    /// Scene file (TOML).
-    scene: PathBuf,
-    /// Output block file.
-    #[arg(short, long)]
-    output: PathBuf,
-    #[arg(long, value_enum, default_value_t = Preset::Fast)]
-    bvh_preset: Preset,
-    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
-    block_size: u32,
-    /// Memory the build may use, in binary units (4GiB, 512MiB); a model whose build in memory
-    /// needs more is built out of core, in parts that fit. Default: half the memory available.
-    #[arg(long)]
-    memory: Option<String>,
-    /// No progress bars.
-    #[arg(long, short)]
-    quiet: bool,
 }
 
 #[derive(Args, Clone)]
@@ -164,167 +141,6 @@ impl ShadeArgs {
 
     fn apply(&self, base: Shading) -> Result<Shading> {
         Ok(self.overrides().apply(base)?)
-    }
-}
-
-#[derive(Args)]
-struct RenderArgs {
-    /// Scene file (TOML) or prepared block file (.dcb).
-    scene: PathBuf,
-    /// Output PNG.
-    #[arg(short, long, default_value = "out.png")]
-    output: PathBuf,
-    /// Also write linear OpenEXR with R, G, B and the requested AOVs.
-    #[arg(long)]
-    exr: Option<PathBuf>,
-    /// EXR AOVs, comma separated.
-    #[arg(long, value_enum, value_delimiter = ',')]
-    aov: Vec<Aov>,
-    #[arg(long)]
-    width: Option<u32>,
-    #[arg(long)]
-    height: Option<u32>,
-    /// Frames to render, orbiting the camera about the focal point (one turn in all); outputs
-    /// are numbered (out_0000.png ...). The cache persists between frames.
-    #[arg(long, default_value_t = 1)]
-    frames: u32,
-    /// Write each frame's fault/fetch trace (JSON Lines) into this directory.
-    #[arg(long)]
-    trace: Option<PathBuf>,
-    /// PNG exposure in stops (the EXR stays linear).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    exposure: f32,
-    /// Draw a colour legend (a scalar bar with the array's name and range) on the PNG, for each
-    /// array whose values colour the image (`color_by`).
-    #[arg(long)]
-    legend: bool,
-    /// The camera of a ParaView camera file (.pvcc, saved by ParaView's Adjust Camera dialog):
-    /// position, focal point, view up, view angle, and parallel projection when set.
-    #[arg(long)]
-    camera: Option<PathBuf>,
-    /// Off a terminal, print how far a frame is every this many seconds (a long render with
-    /// many samples); on a terminal a progress bar shows it.
-    #[arg(long, default_value_t = 5.0, allow_hyphen_values = true)]
-    progress_every: f64,
-    /// No progress bar and no progress lines.
-    #[arg(long, short)]
-    quiet: bool,
-    #[command(flatten)]
-    shade: ShadeArgs,
-    #[command(flatten)]
-    gpu: GpuArgs,
-    #[command(flatten)]
-    dc: DcArgs,
-    #[command(flatten)]
-    cluster: ClusterArgs,
-}
-
-/// Options of cluster mode (under mpirun or srun with 2 ranks or more).
-#[derive(Args, Clone)]
-struct ClusterArgs {
-    /// Threads the display copies received pixels into the frame with.
-    #[arg(long, default_value_t = 2)]
-    copy_threads: u32,
-    /// Side in pixels of the balancer's large tiles.
-    #[arg(long, default_value_t = 128)]
-    tile: u32,
-    /// Side of the smallest tiles the balancer splits them into toward the end of a frame.
-    #[arg(long, default_value_t = 16)]
-    min_tile: u32,
-    /// Target size in bytes of a pixel message to the display.
-    #[arg(long, default_value_t = 32 * 1024)]
-    message_bytes: usize,
-    /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
-    #[arg(long, default_value_t = 300)]
-    timeout: u64,
-    /// Display benchmark (chapter 5.5): the camera looks away from the model, tiles are traced
-    /// once and then resent, and the MPI bandwidth to the display is measured after the frames.
-    #[arg(long)]
-    display_bench: bool,
-    /// Write the run's figures (frame times, per-rank statistics) as JSON to this file.
-    #[arg(long)]
-    stats: Option<PathBuf>,
-}
-
-#[derive(Args, Clone)]
-struct DcArgs {
-    /// Split the model over N in-process ranks and render through a distributed cache.
-    #[arg(long)]
-    virtual_ranks: Option<u32>,
-    /// The rank this process renders as (with --virtual-ranks).
-    #[arg(long, default_value_t = 0)]
-    rank: u32,
-    /// Cache size: a fraction of the model (1/8), lines (64lines) or bytes (256MiB). Default 1/8
-    /// with --virtual-ranks; under mpirun, giving it turns the distributed cache on.
-    #[arg(long)]
-    cache: Option<String>,
-    /// How borrowed blocks map to cache lines (default ize).
-    #[arg(long, value_enum)]
-    cache_map: Option<CacheMap>,
-    /// Everything resident, no cache (the default without --virtual-ranks).
-    #[arg(long, conflicts_with = "virtual_ranks")]
-    replicate: bool,
-    /// With a distributed cache: the blocks every rank holds besides its own. `nodes` costs the
-    /// BVH's blocks on every rank (about a sixth of a model) and leaves only triangle blocks to
-    /// fault.
-    #[arg(long, value_enum, default_value_t = Replicate::Root)]
-    replicate_blocks: Replicate,
-}
-
-impl DcArgs {
-    fn options(&self) -> Result<Option<DcOptions>> {
-        let Some(n) = self.virtual_ranks else {
-            if self.replicate_blocks != Replicate::Root {
-                bail!(
-                    "--replicate-blocks {} needs a distributed cache: give --virtual-ranks N \
-                     (under mpirun, --cache); without one every block is resident",
-                    self.replicate_name()
-                );
-            }
-            // One rank under mpirun takes the cluster's command line: it owns every block.
-            let alone = dcrt::cluster::launched_ranks().is_none();
-            if let Some(what) = self.cache_option().filter(|_| alone) {
-                bail!(
-                    "{what} needs a distributed cache: give --virtual-ranks N (under mpirun, \
-                     --cache); without one every block is resident"
-                );
-            }
-            return Ok(None);
-        };
-        if n == 0 {
-            bail!("--virtual-ranks must be at least 1");
-        }
-        if self.rank >= n {
-            bail!(
-                "--rank {} is out of range: --virtual-ranks {n} gives ranks 0..{n}",
-                self.rank
-            );
-        }
-        dcrt::blocks::ranks::Ranks::new(n, self.rank)?;
-        Ok(Some(DcOptions {
-            ranks: n,
-            rank: self.rank,
-            cache: CacheSize::parse(self.cache.as_deref().unwrap_or("1/8"))?,
-            map: self.map(),
-            replicate: self.replicate_blocks,
-        }))
-    }
-
-    fn map(&self) -> CacheMap {
-        self.cache_map.unwrap_or(CacheMap::Ize)
-    }
-
-    /// The cache option given, if any (`--cache` first), for a refusal where no cache is made.
-    fn cache_option(&self) -> Option<String> {
-        match (&self.cache, self.cache_map) {
-            (Some(c), _) => Some(format!("--cache {c}")),
-            (None, Some(_)) => Some("--cache-map".into()),
-            (None, None) => None,
-        }
-    }
-
-    fn replicate_name(&self) -> String {
-        format!("{:?}", self.replicate_blocks).to_lowercase()
     }
 }
 
@@ -542,62 +358,4 @@ fn settings(g: &GpuArgs) -> Settings {
         block_counts: g.block_counts,
         ..Settings::default()
     }
-}
-
-/// `render` under an MPI launcher with `k` > 1 ranks: this process's role of the cluster.
-fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
-    if a.dc.virtual_ranks.is_some() {
-        bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
-    }
-    let c = &a.cluster;
-    let cache = match &a.dc.cache {
-        Some(s) => Some(dcrt::cluster::CacheOptions {
-            size: CacheSize::parse(s)?,
-            map: a.dc.map(),
-            replicate: a.dc.replicate_blocks,
-        }),
-        None if a.dc.replicate_blocks != Replicate::Root => bail!(
-            "--replicate-blocks {} needs --cache under mpirun: without a cache every rank holds \
-             the whole model",
-            a.dc.replicate_name()
-        ),
-        None if a.dc.cache_map.is_some() => bail!(
-            "--cache-map needs --cache under mpirun: without a cache every rank holds the whole \
-             model"
-        ),
-        None => None,
-    };
-    let opts = dcrt::cluster::Options {
-        input: a.scene.clone(),
-        output: a.output.clone(),
-        exr: a.exr.clone(),
-        aovs: a.aov.clone(),
-        width: a.width,
-        height: a.height,
-        frames: a.frames,
-        trace: a.trace.clone(),
-        adapter: a.gpu.adapter.clone(),
-        settings: settings(&a.gpu),
-        shade: a.shade.overrides(),
-        exposure: a.exposure,
-        preset: a.gpu.bvh_preset,
-        format,
-        cache,
-        copy_threads: c.copy_threads,
-        tile: c.tile,
-        min_tile: c.min_tile,
-        message_bytes: c.message_bytes,
-        timeout: std::time::Duration::from_secs(c.timeout),
-        display_bench: c.display_bench,
-        stats: c.stats.clone(),
-        legend: a.legend,
-        camera: a
-            .camera
-            .as_deref()
-            .map(dcrt::scene::pvcc::load_pvcc)
-            .transpose()?,
-    };
-    // A failed job leaves none of the frames this rank wrote, as in one process.
-    dcrt::cluster::run(&opts).inspect_err(|_| render::say_kept(dcrt::files::remove_written()))?;
-    Ok(())
 }

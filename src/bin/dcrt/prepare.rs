@@ -1,13 +1,35 @@
 //! `dcrt prepare`: a scene's BVH and blocks, built once into a block file, in memory or out of
 //! core within `--memory`.
 
-use crate::PrepareArgs;
 use anyhow::{Context, Result};
+use clap::Args;
 use dcrt::blocks::Format;
+use dcrt::bvh::Preset;
 use dcrt::prepare::budget::Budget;
 use dcrt::prepare::{Options, prepare as run};
 use dcrt::progress::Progress;
 use dcrt::scene::Scene;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct PrepareArgs {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Output block file.
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    bvh_preset: Preset,
+    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
+    block_size: u32,
+    /// Memory the build may use, in binary units (4GiB, 512MiB); a model whose build in memory
+    /// needs more is built out of core, in parts that fit. Default: half the memory available.
+    #[arg(long)]
+    memory: Option<String>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+}
 
 pub fn prepare(a: PrepareArgs) -> Result<()> {
     // Options first, then the paths, then the work.
