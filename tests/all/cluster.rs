@@ -74,6 +74,8 @@ struct Fixture {
     dir: TempDir,
     dcb: PathBuf,
     size: (u32, u32),
+    /// Blocks in the model (node and triangle).
+    blocks: u32,
 }
 
 impl Fixture {
@@ -93,6 +95,14 @@ impl Fixture {
         let dcb = dir.path("rm.dcb");
         let out = dcrt(&[&"prepare", &scene, &"-o", &dcb]);
         assert!(out.status.success(), "{}", stderr(&out));
+        // "N triangles, A node + B triangle blocks of ...": the model's blocks.
+        let said = stderr(&out);
+        let words: Vec<&str> = said.split_whitespace().collect();
+        let before = |w: &str| -> u32 {
+            let i = words.iter().position(|x| *x == w).expect(w);
+            words[i - 1].parse().unwrap()
+        };
+        let blocks = before("node") + before("triangle");
         let out = dcrt(&[
             &"render",
             &dcb,
@@ -110,6 +120,7 @@ impl Fixture {
             dir,
             dcb,
             size: (w, h),
+            blocks,
         }
     }
 
@@ -162,6 +173,25 @@ impl Fixture {
         let out = mpirun(k, mca, &args, &[], 120).out;
         let err = stderr(&out);
         assert!(out.status.success(), "k={k} {mca:?} {cache:?}: {err}");
+        if cache.is_some() && k >= 4 {
+            // Render rank i of n holds only its share: blocks i, i + n, ... (chapter 5.3).
+            let n = k - 2;
+            for i in 0..n {
+                let head = format!("rank {} (render {i} of {n}): ", i + 2);
+                let line = err
+                    .lines()
+                    .find(|l| l.starts_with(&head))
+                    .unwrap_or_else(|| panic!("k={k}: no {head:?} in:\n{err}"));
+                let own: u32 = line
+                    .split(" own blocks")
+                    .next()
+                    .and_then(|l| l.rsplit('(').next())
+                    .and_then(|n| n.parse().ok())
+                    .unwrap_or_else(|| panic!("k={k}: {line}"));
+                let share = (self.blocks - i).div_ceil(n);
+                assert_eq!(own, share, "k={k}: {line}");
+            }
+        }
         for f in 0..FRAMES {
             let a = image::open(self.frame("single", "png", f))
                 .unwrap()
