@@ -36,6 +36,20 @@ impl Heartbeat {
         }
         due
     }
+
+    /// Says `ALIVE` to the display when it is time (from a render rank's waits, which have no
+    /// communicator at hand: MPI_COMM_WORLD is the job's).
+    pub fn beat(&mut self) {
+        if self.due() {
+            let world = mpi::topology::SimpleCommunicator::world();
+            super::mailbox::send(
+                &world,
+                super::Roles::DISPLAY,
+                super::protocol::Tag::Alive,
+                &[],
+            );
+        }
+    }
 }
 
 /// When each world rank was last heard from.

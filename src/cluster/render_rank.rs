@@ -50,14 +50,7 @@ impl BlockSource for MpiBlocks {
         let (start, mut heart) = (Instant::now(), Heartbeat::new(self.timeout));
         let (roles, me, timeout) = (self.roles, self.rank, self.timeout);
         let mut waiting = |owed: &[u32]| -> Result<()> {
-            if heart.due() {
-                send(
-                    &SimpleCommunicator::world(),
-                    Roles::DISPLAY,
-                    Tag::Alive,
-                    &[],
-                );
-            }
+            heart.beat();
             if start.elapsed() > timeout {
                 let owners: Vec<String> = owed
                     .iter()
@@ -153,14 +146,7 @@ pub fn run(
     gpu.set_idle(Some(Idle {
         hook: Box::new(move || {
             rma::poll_world();
-            if heart.due() {
-                send(
-                    &SimpleCommunicator::world(),
-                    Roles::DISPLAY,
-                    Tag::Alive,
-                    &[],
-                );
-            }
+            heart.beat();
         }),
         limit: opts.timeout,
     }));
