@@ -119,7 +119,7 @@ pub struct Round {
 
 /// The frame's totals.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
-pub struct Summary {
+pub struct FrameSummary {
     pub frame: u32,
     /// `render` (or `single` for a one-process render), `display`, `balancer`, or both joined
     /// by `+` when one rank plays two roles.
@@ -158,7 +158,7 @@ pub struct FrameTrace {
     /// Cluster events of the frame (tiles rendered, grants, messages), each an object with a
     /// `"type"`.
     pub events: Vec<serde_json::Value>,
-    pub summary: Summary,
+    pub summary: FrameSummary,
 }
 
 #[derive(Serialize)]
@@ -174,7 +174,7 @@ struct FrameRecord<'a> {
     #[serde(flatten)]
     run: &'a Run,
     #[serde(flatten)]
-    summary: &'a Summary,
+    summary: &'a FrameSummary,
 }
 
 impl FrameTrace {

@@ -300,7 +300,7 @@ pub struct Tracer<'g> {
     pub(super) depth: u32,
     constants: Constants,
     /// Called after each sample pass of a batch with (passes done, passes in the rectangle).
-    pub(super) progress: Option<Progress>,
+    pub(super) progress: Option<PassProgress>,
     /// With a cache, the pixels a batch may hold so that its blocks fit the cache, from the last
     /// frame's distinct blocks (`None`: they fit, or no frame has ended yet).
     fit_pixels: Option<u32>,
@@ -421,7 +421,7 @@ pub enum OverlapMode {
 }
 
 /// What `Tracer::set_progress` installs.
-pub type Progress = Box<dyn FnMut(u64, u64)>;
+pub type PassProgress = Box<dyn FnMut(u64, u64)>;
 
 impl<'g> Tracer<'g> {
     /// Uploads a model's blocks; `dc` is `None` for a replicated model.
@@ -721,7 +721,7 @@ impl<'g> Tracer<'g> {
 
     /// Installs (or with `None` removes) what is told of each finished sample pass, so that a
     /// long render can say how far it is.
-    pub fn set_progress(&mut self, progress: Option<Progress>) {
+    pub fn set_progress(&mut self, progress: Option<PassProgress>) {
         self.progress = progress;
     }
 

@@ -28,7 +28,7 @@ use crate::scene::{Bounds, Model, Scene};
 use budget::Budget;
 use indicatif::ProgressBar;
 use obvhs::aabb::Aabb;
-use partition::{Part, Source};
+use partition::{Part, TriangleFile};
 use spill::{Record, Triangle, Writer};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -266,7 +266,7 @@ fn out_of_core(
     let npb = format.nodes_per_block() as usize;
     let cap = o.budget.part_triangles();
     let bar = o.progress.bar(2 * count, "partitioning");
-    let spill = Source::Spill {
+    let spill = TriangleFile::Spill {
         path: input.spill.clone(),
         count,
     };

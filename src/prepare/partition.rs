@@ -34,7 +34,7 @@ const SLACK: f64 = 0.85;
 /// Triangles in a temporary file: the spill (36-byte triangles whose index is their id) or a
 /// part (`Record`s).
 #[derive(Clone, Debug)]
-pub enum Source {
+pub enum TriangleFile {
     Spill { path: PathBuf, count: u64 },
     Part(Part),
 }
@@ -49,18 +49,18 @@ pub struct Part {
     pub centres: Aabb,
 }
 
-impl Source {
+impl TriangleFile {
     fn count(&self) -> u64 {
         match self {
-            Source::Spill { count, .. } => *count,
-            Source::Part(p) => p.count,
+            TriangleFile::Spill { count, .. } => *count,
+            TriangleFile::Part(p) => p.count,
         }
     }
 
     /// Calls `f` with every triangle and its primitive id, in file order.
     fn each(&self, f: &mut dyn FnMut(&Triangle, u32) -> Result<()>) -> Result<()> {
         match self {
-            Source::Spill { path, count } => {
+            TriangleFile::Spill { path, count } => {
                 let mut r = Reader::<Triangle>::open(path, *count)?;
                 let mut id = 0u32;
                 while let Some(chunk) = r.next_chunk()? {
@@ -70,7 +70,7 @@ impl Source {
                     }
                 }
             }
-            Source::Part(p) => {
+            TriangleFile::Part(p) => {
                 let mut r = Reader::<Record>::open(&p.path, p.count)?;
                 while let Some(chunk) = r.next_chunk()? {
                     for rec in chunk {
@@ -267,7 +267,7 @@ fn depth_for(count: u64, cap: u64) -> u32 {
 /// Cuts `source` into parts of at most `cap` triangles, in files of `scratch`: the parts and
 /// the tree of the cuts over them. `bar` counts the triangles read.
 pub fn split(
-    source: &Source,
+    source: &TriangleFile,
     centres: &Aabb,
     cap: u64,
     scratch: &Scratch,
@@ -298,7 +298,7 @@ impl Cutter<'_> {
     /// parts, appended to `out`; the tree of the cuts over their indices in `out`.
     fn split(
         &self,
-        source: &Source,
+        source: &TriangleFile,
         centres: &Aabb,
         level: u32,
         out: &mut Vec<Part>,
@@ -340,7 +340,7 @@ impl Cutter<'_> {
         for p in parts {
             if p.count > self.cap {
                 let centres = p.centres;
-                let c = self.split(&Source::Part(p.clone()), &centres, level + 1, out)?;
+                let c = self.split(&TriangleFile::Part(p.clone()), &centres, level + 1, out)?;
                 std::fs::remove_file(&p.path).map_err(|e| crate::Error::io(&p.path, e))?;
                 sub.push(c);
             } else {
@@ -358,7 +358,7 @@ impl Cutter<'_> {
     /// passes.
     fn scatter(
         &self,
-        source: &Source,
+        source: &TriangleFile,
         grid: &Grid,
         part_of: &[u32],
         parts: usize,

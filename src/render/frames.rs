@@ -5,7 +5,7 @@
 //! trace file.
 
 use crate::dc::CacheMap;
-use crate::dc::trace::{FrameTrace, Summary};
+use crate::dc::trace::{FrameSummary, FrameTrace};
 use crate::error::Result;
 use crate::gpu::tracer::{Frame, FrameStats, Rect, Tracer};
 use crate::scene::Camera;
@@ -184,8 +184,8 @@ pub fn summarize(
     cache: Option<(u32, CacheMap)>,
     frame: u32,
     role: Role,
-) -> Summary {
-    let mut s = Summary {
+) -> FrameSummary {
+    let mut s = FrameSummary {
         frame,
         role: role.name.into(),
         rank: role.rank,
@@ -195,7 +195,7 @@ pub fn summarize(
         frame_ms: stats.seconds * 1e3,
         trace_ms: stats.trace_seconds * 1e3,
         shade_ms: stats.shade_seconds * 1e3,
-        ..Summary::default()
+        ..FrameSummary::default()
     };
     if let Some((lines, map)) = cache {
         s.cache_lines = lines;
@@ -247,7 +247,7 @@ mod tests {
             ranks: 1,
         };
         let s = summarize(&stats(), None, 3, role);
-        let want = Summary {
+        let want = FrameSummary {
             frame: 3,
             role: "single".into(),
             rank: 0,
@@ -257,7 +257,7 @@ mod tests {
             frame_ms: 250.0,
             trace_ms: 125.0,
             shade_ms: 62.5,
-            ..Summary::default()
+            ..FrameSummary::default()
         };
         assert_eq!(s, want);
     }
@@ -270,7 +270,7 @@ mod tests {
             ranks: 5,
         };
         let s = summarize(&stats(), Some((64, CacheMap::Demarle)), 1, role);
-        let want = Summary {
+        let want = FrameSummary {
             frame: 1,
             role: "render".into(),
             rank: 2,

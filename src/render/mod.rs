@@ -110,14 +110,14 @@ impl Prepared {
 
 /// Where a render's blocks are: built now, or in a block file that each rank reads its own part
 /// of.
-pub enum Source {
+pub enum BlocksAt {
     Built(Blocks),
     File(Box<DcbFile>),
 }
 
 /// What a render needs, from a scene (built now) or a block file (built before).
 pub struct Loaded {
-    pub source: Source,
+    pub source: BlocksAt,
     pub meshes: Meshes,
     pub depth: u32,
     pub triangles: u64,
@@ -151,7 +151,7 @@ impl Loaded {
             background: scene.background,
             shading: scene.shading,
             build_seconds: Some((p.bvh.build_time + p.bvh.layout_time).as_secs_f64()),
-            source: Source::Built(p.blocks),
+            source: BlocksAt::Built(p.blocks),
         })
     }
 
@@ -190,28 +190,28 @@ impl Loaded {
             background,
             shading: scene.map(|s| s.shading).unwrap_or_default(),
             build_seconds: None,
-            source: Source::File(Box::new(f)),
+            source: BlocksAt::File(Box::new(f)),
         })
     }
 
     pub fn format(&self) -> Format {
         match &self.source {
-            Source::Built(b) => b.format,
-            Source::File(f) => f.format,
+            BlocksAt::Built(b) => b.format,
+            BlocksAt::File(f) => f.format,
         }
     }
 
     pub fn block_count(&self) -> u32 {
         match &self.source {
-            Source::Built(b) => b.count(),
-            Source::File(f) => f.count(),
+            BlocksAt::Built(b) => b.count(),
+            BlocksAt::File(f) => f.count(),
         }
     }
 
     pub fn node_blocks(&self) -> u32 {
         match &self.source {
-            Source::Built(b) => b.node_blocks,
-            Source::File(f) => f.node_blocks,
+            BlocksAt::Built(b) => b.node_blocks,
+            BlocksAt::File(f) => f.node_blocks,
         }
     }
 
@@ -229,8 +229,8 @@ impl Loaded {
         dc: Option<&DcOptions>,
     ) -> Result<Tracer<'g>> {
         let f = match &self.source {
-            Source::Built(b) => return tracer(gpu, b, &self.meshes, self.depth, settings, dc),
-            Source::File(f) => f,
+            BlocksAt::Built(b) => return tracer(gpu, b, &self.meshes, self.depth, settings, dc),
+            BlocksAt::File(f) => f,
         };
         let Some(o) = dc else {
             let blocks = f.read_all(1)?;
@@ -254,8 +254,8 @@ impl Loaded {
     /// blocks are read.
     pub fn resident(&self, ranks: Ranks) -> Result<Vec<u32>> {
         match &self.source {
-            Source::File(f) => f.read_resident(ranks),
-            Source::Built(b) => Ok(ranks
+            BlocksAt::File(f) => f.read_resident(ranks),
+            BlocksAt::Built(b) => Ok(ranks
                 .resident_blocks(b.count())
                 .flat_map(|k| b.block(k).iter().copied())
                 .collect()),
@@ -272,8 +272,8 @@ impl Loaded {
         setup: DcSetup,
     ) -> Result<Tracer<'g>> {
         let (node_blocks, tri_blocks, attrs) = match &self.source {
-            Source::Built(b) => (b.node_blocks, b.tri_blocks, b.attrs),
-            Source::File(f) => (f.node_blocks, f.tri_blocks, f.meta.attrs),
+            BlocksAt::Built(b) => (b.node_blocks, b.tri_blocks, b.attrs),
+            BlocksAt::File(f) => (f.node_blocks, f.tri_blocks, f.meta.attrs),
         };
         let model = GpuModel {
             format: self.format(),
@@ -291,8 +291,8 @@ impl Loaded {
     /// from a scene or read from a block file.
     pub fn fingerprint(&self) -> u64 {
         let crc = match &self.source {
-            Source::Built(b) => b.fingerprint(),
-            Source::File(f) => f.fingerprint(),
+            BlocksAt::Built(b) => b.fingerprint(),
+            BlocksAt::File(f) => f.fingerprint(),
         };
         (u64::from(crc) << 32) | u64::from(self.block_count())
     }

@@ -9,12 +9,12 @@ use serde::de::DeserializeOwned;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-pub use crate::dc::trace::{Fault, Round, Summary};
+pub use crate::dc::trace::{Fault, FrameSummary, Round};
 
 /// The `frame` record: the schema version and run (absent before version 1), then the totals
-/// the tracer wrote (`dc::trace::Summary`, whose fields it derefs to).
+/// the tracer wrote (`dc::trace::FrameSummary`, whose fields it derefs to).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Frame {
+pub struct FrameRecord {
     #[serde(default)]
     pub version: u32,
     #[serde(default)]
@@ -22,12 +22,12 @@ pub struct Frame {
     #[serde(default)]
     pub epoch_wtime: Option<f64>,
     #[serde(flatten)]
-    pub summary: Summary,
+    pub summary: FrameSummary,
 }
 
-impl std::ops::Deref for Frame {
-    type Target = Summary;
-    fn deref(&self) -> &Summary {
+impl std::ops::Deref for FrameRecord {
+    type Target = FrameSummary;
+    fn deref(&self) -> &FrameSummary {
         &self.summary
     }
 }
@@ -82,7 +82,7 @@ pub struct RankFrame {
     pub displays: Vec<Display>,
     /// The display's `render` records (a render rank's `DONE` report) and events of other types.
     pub other: Vec<Value>,
-    pub frame: Frame,
+    pub frame: FrameRecord,
 }
 
 impl RankFrame {
@@ -217,7 +217,7 @@ fn read_file(path: &Path) -> Result<RankFrame> {
         match kind.as_str() {
             "round" => out.rounds.push(record(v, n, &at)?),
             "frame" => {
-                let f: Frame = record(v, n, &at)?;
+                let f: FrameRecord = record(v, n, &at)?;
                 if f.version > VERSION {
                     return Err(at(
                         n,
@@ -268,12 +268,12 @@ fn record<T: DeserializeOwned>(
     serde_json::from_value(v).map_err(|e| at(n, format!("bad {kind} record: {e}")))
 }
 
-fn empty_frame() -> Frame {
-    Frame {
+fn empty_frame() -> FrameRecord {
+    FrameRecord {
         version: 0,
         run: None,
         epoch_wtime: None,
-        summary: Summary::default(),
+        summary: FrameSummary::default(),
     }
 }
 

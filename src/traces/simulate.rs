@@ -59,7 +59,7 @@ use crate::gpu::tracer::Rect;
 use serde::Serialize;
 
 #[derive(Clone, Debug)]
-pub struct Model {
+pub struct ClusterModel {
     /// Total MPI ranks, as `mpirun -n K`.
     pub ranks: u32,
     /// Bytes per second of block fetches; `None` keeps the measured fetch times.
@@ -216,7 +216,7 @@ struct Cost {
 }
 
 /// A recorded tile's cost split as `Cost` is, in ms.
-fn tile_ms(f: &RankFrame, tile: &Tile, m: &Model) -> (f64, f64) {
+fn tile_ms(f: &RankFrame, tile: &Tile, m: &ClusterModel) -> (f64, f64) {
     let gpu: f64 = f.tiles.iter().map(|x| x.trace_ms).sum();
     let share = if gpu > 0.0 { tile.trace_ms / gpu } else { 0.0 };
     let own = tile.trace_ms + tile.send_ms - share * f.frame.fetch_ms;
@@ -229,7 +229,7 @@ fn tile_ms(f: &RankFrame, tile: &Tile, m: &Model) -> (f64, f64) {
 /// The fixed cost of a tile: the intercept of the least-squares line through the tiles' shared
 /// costs against their pixels, frame 0 left out when there are others (its first tiles pay the
 /// set-up). Zero when the tiles do not tell (all of one size, or a line falling with area).
-fn fixed_ms(t: &Traces, m: &Model) -> f64 {
+fn fixed_ms(t: &Traces, m: &ClusterModel) -> f64 {
     let first = t.frames().first().copied();
     let several = t.frames().len() > 1;
     let points: Vec<(f64, f64)> = t
@@ -252,7 +252,13 @@ fn fixed_ms(t: &Traces, m: &Model) -> f64 {
 /// The costs of a frame's recorded tiles. A rank's first tile of the run also pays a one-time
 /// set-up (the GPU's first dispatches); its excess over the frame's median cost per pixel is
 /// taken out and returned, the mean over ranks, as a delay every simulated rank starts with.
-fn frame_costs(t: &Traces, frame: u32, m: &Model, fixed: f64, first: bool) -> (Vec<Cost>, f64) {
+fn frame_costs(
+    t: &Traces,
+    frame: u32,
+    m: &ClusterModel,
+    fixed: f64,
+    first: bool,
+) -> (Vec<Cost>, f64) {
     let mut out = Vec::new();
     let mut firsts = Vec::new();
     for f in t.files.iter().filter(|f| f.frame.frame == frame) {
@@ -295,7 +301,7 @@ fn frame_costs(t: &Traces, frame: u32, m: &Model, fixed: f64, first: bool) -> (V
 }
 
 /// A rank's fetch time in a frame re-priced by the model's network; `None` keeps the measured.
-fn repriced(f: &RankFrame, m: &Model) -> Option<f64> {
+fn repriced(f: &RankFrame, m: &ClusterModel) -> Option<f64> {
     if m.bandwidth.is_none() && m.latency.is_none() {
         return None;
     }
@@ -327,7 +333,7 @@ fn cost(costs: &[Cost], r: Rect, fixed: f64, stretch: f64) -> f64 {
     (fixed + shared) * stretch + network
 }
 
-pub fn simulate(t: &Traces, m: &Model) -> Result<Prediction> {
+pub fn simulate(t: &Traces, m: &ClusterModel) -> Result<Prediction> {
     let roles = Roles::new(m.ranks)?;
     let render = roles.render_ranks();
     let frames = t.frames();
@@ -467,8 +473,8 @@ fn measured_completes(t: &Traces, frames: &[u32]) -> Option<Vec<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dc::trace::{Round, Summary};
-    use crate::traces::read::{Frame, RankFrame, Tile};
+    use crate::dc::trace::{FrameSummary, Round};
+    use crate::traces::read::{FrameRecord, RankFrame, Tile};
     use std::path::PathBuf;
 
     const FRAMES: u32 = 4;
@@ -487,17 +493,17 @@ mod tests {
             grants: Vec::new(),
             displays: Vec::new(),
             other: Vec::new(),
-            frame: Frame {
+            frame: FrameRecord {
                 version: 1,
                 run: Some("synthetic".into()),
                 epoch_wtime: None,
-                summary: Summary {
+                summary: FrameSummary {
                     frame,
                     role: "render".into(),
                     rank,
                     ranks: 4,
                     lookups,
-                    ..Summary::default()
+                    ..FrameSummary::default()
                 },
             },
         }
@@ -547,8 +553,8 @@ mod tests {
         }
     }
 
-    fn model(ranks: u32, work_exponent: f64, ranks_per_node: Option<u32>) -> Model {
-        Model {
+    fn model(ranks: u32, work_exponent: f64, ranks_per_node: Option<u32>) -> ClusterModel {
+        ClusterModel {
             ranks,
             bandwidth: None,
             latency: None,

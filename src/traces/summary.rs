@@ -73,7 +73,7 @@ impl Row {
 }
 
 #[derive(Clone, Debug, Serialize, PartialEq)]
-pub struct Summary {
+pub struct RunSummary {
     pub dir: String,
     pub run: Option<String>,
     pub version: u32,
@@ -84,8 +84,8 @@ pub struct Summary {
     pub totals: Row,
 }
 
-impl Summary {
-    pub fn of(t: &Traces) -> Summary {
+impl RunSummary {
+    pub fn of(t: &Traces) -> RunSummary {
         let rows: Vec<Row> = t.files.iter().map(Row::of).collect();
         let mut totals = Row {
             role: "all".into(),
@@ -100,7 +100,7 @@ impl Summary {
             totals.hits as f64 / totals.lookups as f64
         };
         let first = &t.files[0].frame;
-        Summary {
+        RunSummary {
             dir: t.dir.display().to_string(),
             run: first.run.clone(),
             version: first.version,

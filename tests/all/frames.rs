@@ -140,7 +140,7 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
         );
         // The frame loop adds when the frame began.
         assert!(s.start_ms.is_some_and(|t| t >= 0.0), "frame {i}: {s:?}");
-        let want = dcrt::dc::trace::Summary {
+        let want = dcrt::dc::trace::FrameSummary {
             start_ms: s.start_ms,
             ..want
         };

@@ -5,7 +5,7 @@
 
 use crate::common::*;
 use dcrt::traces::Traces;
-use dcrt::traces::summary::Summary;
+use dcrt::traces::summary::RunSummary;
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -116,7 +116,7 @@ fn summary_totals_are_the_frame_records() {
     assert!(all.contains(&format!(" {} ", t["fault_rounds"])), "{table}");
     // One process renders, so every timeline process is rank 1's and the plot is drawn.
     let t = Traces::read(&traces).unwrap();
-    assert_eq!(Summary::of(&t).ranks, [1]);
+    assert_eq!(RunSummary::of(&t).ranks, [1]);
     ok(&[&"trace", &"plot", &traces, &"-o", &d.path("p.png")]);
     let png = image::open(d.path("p.png")).unwrap();
     assert!(png.width() > 100 && png.height() > 100);
@@ -222,7 +222,7 @@ fn bad_trace_directories_name_the_file_and_line() {
         let text: Vec<String> = l.iter().map(Value::to_string).collect();
         std::fs::write(&p, text.join("\n") + "\n").unwrap();
     }
-    assert_eq!(Summary::of(&Traces::read(&old).unwrap()).version, 0);
+    assert_eq!(RunSummary::of(&Traces::read(&old).unwrap()).version, 0);
 }
 
 fn mpirun_traces(k: u32, frames: u32, d: &TempDir) -> std::path::PathBuf {

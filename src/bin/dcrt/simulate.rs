@@ -3,7 +3,7 @@
 use anyhow::{Result, bail};
 use clap::Args;
 use dcrt::traces::Traces;
-use dcrt::traces::simulate::{Model, simulate as run};
+use dcrt::traces::simulate::{ClusterModel, simulate as run};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -44,7 +44,7 @@ pub fn simulate(a: SimulateArgs) -> Result<()> {
     let t = Traces::read(&a.dir)?;
     let p = run(
         &t,
-        &Model {
+        &ClusterModel {
             ranks: a.ranks,
             bandwidth: a.bandwidth.map(|b| b * 1e6),
             latency: a.latency.map(|l| l * 1e-6),

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use dcrt::traces::{Traces, perfetto, plot, summary::Summary};
+use dcrt::traces::{Traces, perfetto, plot, summary::RunSummary};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -39,7 +39,7 @@ enum Tool {
 pub fn trace(a: TraceArgs) -> Result<()> {
     match a.tool {
         Tool::Summary { dir, json } => {
-            let s = Summary::of(&Traces::read(&dir)?);
+            let s = RunSummary::of(&Traces::read(&dir)?);
             if json {
                 println!("{}", serde_json::to_string_pretty(&s)?);
             } else {

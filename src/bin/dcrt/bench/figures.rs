@@ -20,7 +20,7 @@ use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
 use dcrt::traces::Traces;
 use dcrt::traces::plot::PALETTE;
-use dcrt::traces::simulate::{Model, Sharing, simulate};
+use dcrt::traces::simulate::{ClusterModel, Sharing, simulate};
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::Path;
@@ -361,8 +361,8 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
     Ok(())
 }
 
-fn model(ranks: u32, bandwidth: Option<f64>, per_node: Option<u32>, w: f64) -> Model {
-    Model {
+fn model(ranks: u32, bandwidth: Option<f64>, per_node: Option<u32>, w: f64) -> ClusterModel {
+    ClusterModel {
         ranks,
         bandwidth,
         latency: None,

@@ -136,7 +136,7 @@ fn ranges(grid: &Grid, chunks: usize) -> Vec<(usize, usize)> {
 }
 
 /// Which chunks are claimed, finished and taken, shared by the workers and the taker.
-struct Progress {
+struct Claims {
     claimed: usize,
     taken: usize,
     done: Vec<Option<ChunkOut>>,
@@ -147,7 +147,7 @@ struct Progress {
 
 /// Marks the progress as stopped if the worker holding it unwinds, so the taker does not wait
 /// for its chunk forever.
-struct Died<'a>(&'a (Mutex<Progress>, Condvar));
+struct Died<'a>(&'a (Mutex<Claims>, Condvar));
 
 impl Drop for Died<'_> {
     fn drop(&mut self) {
@@ -184,7 +184,7 @@ fn for_each_chunk(
         .min(window)
         .clamp(1, ranges.len());
     let shared = (
-        Mutex::new(Progress {
+        Mutex::new(Claims {
             claimed: 0,
             taken: 0,
             done: (0..ranges.len()).map(|_| None).collect(),
