@@ -65,23 +65,26 @@ fn bits(f: &Frame) -> Vec<u8> {
     bytemuck::cast_slice(&f.pixels).to_vec()
 }
 
+/// `m` in one grey `albedo`, path traced under a sky of radiance 1 and no sun, 32x32.
+fn under_white_sky(mut m: Model, albedo: f32, spp: u32, max_depth: u32) -> Frame {
+    m.colors = vec![[albedo; 3]];
+    let sh = Shading {
+        mode: Mode::Path,
+        spp,
+        sky: [1.0; 3],
+        sun: [0.0; 3],
+        max_depth,
+        ..Shading::default()
+    };
+    shaded(&prepare(m), &camera(), 32, 32, sh)
+}
+
 #[test]
 fn furnace_converges_to_one() {
     // Albedo 1 under a sky of radiance 1 and no sun: every path carries throughput 1 until it
     // escapes, so every pixel (object or sky) is 1. A path that self-intersects (bad offset)
     // or is cut at the depth limit darkens its pixel.
-    let mut m = sphere(48, 96, 0.12);
-    m.colors = vec![[1.0; 3]];
-    let p = prepare(m);
-    let sh = Shading {
-        mode: Mode::Path,
-        spp: 8,
-        sky: [1.0; 3],
-        sun: [0.0; 3],
-        max_depth: 64,
-        ..Shading::default()
-    };
-    let f = shaded(&p, &camera(), 32, 32, sh);
+    let f = under_white_sky(sphere(48, 96, 0.12), 1.0, 8, 64);
     let hits = f.pixels.iter().filter(|p| !is_miss(p)).count();
     assert!(
         hits > 200,
@@ -120,20 +123,9 @@ fn furnace_converges_to_one() {
 /// by the cavity test (convergence), whose answer depends on it.
 #[test]
 fn convex_object_of_albedo_one_half_under_a_white_sky_is_one_half() {
-    let mut m = sphere(24, 48, 0.0);
-    m.colors = vec![[0.5; 3]];
-    let p = prepare(m);
-    let sh = Shading {
-        // One sample at each pixel's centre: with several, jittered, an edge pixel mixes the
-        // object and the sky.
-        mode: Mode::Path,
-        spp: 1,
-        sky: [1.0; 3],
-        sun: [0.0; 3],
-        max_depth: 8,
-        ..Shading::default()
-    };
-    let f = shaded(&p, &camera(), 32, 32, sh);
+    // One sample at each pixel's centre: with several, jittered, an edge pixel mixes the
+    // object and the sky.
+    let f = under_white_sky(sphere(24, 48, 0.0), 0.5, 1, 8);
     let (mut hits, mut worst) = (0, 0f32);
     for px in &f.pixels {
         let want = if is_miss(px) { 1.0 } else { 0.5 };
