@@ -28,7 +28,7 @@ fn hits_root(o: vec3<f32>, d: vec3<f32>) -> bool {
     return box_entry(root.lo - pad, root.hi + pad, o, safe_inverse(d), FAR) >= 0.0;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)  // the `args` kernel sizes indirect dispatches by it
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let i = gid.x;
     var live = false;

@@ -6,14 +6,13 @@
 // blocks, 1,024 iterations of its loop at the most.
 #import params
 #import dc
+#import counter
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn main(@builtin(local_invocation_index) lid: u32) {
     let n = min(atomicLoad(&faults.count), params.dc_fault_cap);
-    for (var i = lid; i < n; i += WORKGROUP_SIZE) {
+    for (var i = lid; i < n; i += WORKGROUP) {
         let k = faults.blocks[i];
         faults.blocks[params.dc_fault_cap + i] = atomicExchange(&requested[k], 0u);
     }
 }
-
-const WORKGROUP_SIZE: u32 = 64u;

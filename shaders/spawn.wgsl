@@ -22,7 +22,7 @@ fn spawn_origin(p: vec3<f32>, n: vec3<f32>, err: f32) -> vec3<f32> {
     return p + shading.epsilon * n;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)  // the `args` kernel sizes indirect dispatches by it
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let j = gid.x;
     let fan = shading.fan;

@@ -173,7 +173,7 @@ fn top_at(t: Top, i: u32) -> vec2<u32> {
     return select(select(t.e3, t.e2, i == 2u), select(t.e1, t.e0, i == 0u), i < 2u);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)  // the `args` kernel sizes indirect dispatches by it
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) lid: u32,
         @builtin(subgroup_invocation_id) sgi: u32, @builtin(subgroup_size) sg_size: u32) {
     var again = false;

@@ -5,7 +5,7 @@
 
 use crate::error::{Error as DcrtError, Result};
 use crate::files::write_bytes;
-use crate::gpu::tracer::Frame;
+use crate::gpu::frame::Frame;
 use std::path::Path;
 
 /// Extra EXR channels beside `R`, `G`, `B`.

@@ -6,7 +6,7 @@ use super::schedule::Schedule;
 use super::startup::Image;
 use super::{Options, Roles};
 use crate::error::Result;
-use crate::gpu::tracer::ms;
+use crate::gpu::frame::ms;
 use serde_json::json;
 use std::collections::BTreeMap;
 use std::time::Instant;

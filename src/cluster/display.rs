@@ -11,7 +11,7 @@ use super::{Options, Roles};
 use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};
 use crate::files;
-use crate::gpu::tracer::ms;
+use crate::gpu::frame::ms;
 use crate::output;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;

@@ -5,8 +5,8 @@
 
 use super::protocol::{FRAME_HEADER, Tag, malformed};
 use crate::error::{Error, Result};
+use crate::gpu::frame::{Frame, Rect};
 use crate::gpu::layout::Pixel;
-use crate::gpu::tracer::{Frame, Rect};
 use crate::output::srgb8_exposed;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};

@@ -16,7 +16,7 @@
 //! tag and sender.
 
 use crate::error::{Error, Result};
-use crate::gpu::tracer::Rect;
+use crate::gpu::frame::Rect;
 use serde::{Deserialize, Serialize};
 
 /// Bytes of the frame number that starts every `PIXELS` and `DONE` message.
@@ -264,7 +264,7 @@ impl Message {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gpu::tracer::FrameStats;
+    use crate::gpu::frame::FrameStats;
 
     fn protocol_error(r: Result<Message>) -> String {
         match r {

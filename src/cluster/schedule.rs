@@ -2,7 +2,7 @@
 //! every frame static and always the same, the rest handed out on demand and split as the frame
 //! runs out so that render ranks finish together. Pure logic, no MPI: the balancer role feeds it.
 
-use crate::gpu::tracer::Rect;
+use crate::gpu::frame::Rect;
 use std::collections::VecDeque;
 
 /// Tiles a rank receives unasked at the start of each frame: one to render, one queued, so

@@ -3,8 +3,41 @@
 //! binding name, so no binding list is written by hand (docs/ARCHITECTURE.md, Shaders).
 
 use super::Gpu;
-use super::shaders::{self, BindingKind, KernelInfo};
+use super::shaders::{self, BindingKind, KernelInfo, Override, OverrideType};
 use crate::shading::Mode;
+use std::collections::BTreeMap;
+
+/// Values of pipeline-overridable constants, by the typed names `build.rs` generates from the
+/// WGSL (a misspelt name does not compile); each kernel gets those it declares.
+#[derive(Clone, Debug, Default)]
+pub struct Constants(BTreeMap<Override, f64>);
+
+impl Constants {
+    /// Sets a `bool` override; naming an override of another type is a host bug: it panics.
+    pub fn flag(&mut self, o: Override, on: bool) -> &mut Self {
+        self.set(o, OverrideType::Bool, if on { 1.0 } else { 0.0 })
+    }
+
+    /// Sets a `u32` override; naming an override of another type is a host bug: it panics.
+    pub fn count(&mut self, o: Override, n: u32) -> &mut Self {
+        self.set(o, OverrideType::U32, f64::from(n))
+    }
+
+    fn set(&mut self, o: Override, ty: OverrideType, v: f64) -> &mut Self {
+        assert_eq!(o.ty(), ty, "override {} set as {ty:?}", o.name());
+        self.0.insert(o, v);
+        self
+    }
+
+    /// Those of `kernel`'s overrides that are set, by WGSL name.
+    fn for_kernel(&self, kernel: &KernelInfo) -> Vec<(&'static str, f64)> {
+        kernel
+            .overrides
+            .iter()
+            .filter_map(|&o| Some((o.name(), *self.0.get(&o)?)))
+            .collect()
+    }
+}
 
 /// One kernel's pipeline and the layouts of the groups it declares.
 pub struct Kernel {
@@ -26,7 +59,11 @@ impl Bound {
 
 /// How many workgroups a dispatch runs.
 pub enum Dispatch<'a> {
-    Direct(u32),
+    /// Enough to give each of this many items an invocation: the count divided by the kernel's
+    /// workgroup size (as naga reflects it), rounded up.
+    Over(u32),
+    /// This many workgroups (a kernel whose one workgroup walks a whole list).
+    Groups(u32),
     /// The indirect arguments of a `Counter` (after its count, at byte 4).
     Indirect(&'a wgpu::Buffer),
 }
@@ -60,7 +97,7 @@ fn layout_entry(b: &shaders::BindingInfo) -> wgpu::BindGroupLayoutEntry {
 impl Kernel {
     /// Builds kernel `name` for block store module `store`; of `constants`, it gets those it
     /// declares.
-    pub fn new(gpu: &Gpu, name: &str, store: &str, constants: &[(&'static str, f64)]) -> Kernel {
+    pub fn new(gpu: &Gpu, name: &str, store: &str, constants: &Constants) -> Kernel {
         let info = shaders::kernel(name, store);
         let groups = info.bindings.iter().map(|b| b.group + 1).max().unwrap_or(0);
         let layouts: Vec<Option<wgpu::BindGroupLayout>> = (0..groups)
@@ -95,11 +132,7 @@ impl Kernel {
                 bind_group_layouts: &refs,
                 immediate_size: 0,
             });
-        let constants: Vec<(&str, f64)> = constants
-            .iter()
-            .filter(|(c, _)| info.overrides.contains(c))
-            .copied()
-            .collect();
+        let constants = constants.for_kernel(info);
         let pipeline = gpu
             .device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -174,7 +207,10 @@ impl Kernel {
             }
         }
         match groups {
-            Dispatch::Direct(n) => pass.dispatch_workgroups(n, 1, 1),
+            Dispatch::Over(n) => {
+                pass.dispatch_workgroups(n.div_ceil(self.info.workgroup_size[0]), 1, 1)
+            }
+            Dispatch::Groups(n) => pass.dispatch_workgroups(n, 1, 1),
             Dispatch::Indirect(buf) => pass.dispatch_workgroups_indirect(buf, 4),
         }
     }
@@ -193,7 +229,6 @@ pub struct Kernels {
     /// With a cache, after each round: the listed faults' requesters into the fault list.
     pub requesters: Kernel,
     pub shade: Kernel,
-    pub probe: Kernel,
     pub spawn: Option<Kernel>,
     pub gather: Option<Kernel>,
     /// Colour by data: only models with attribute blocks get it.
@@ -201,22 +236,15 @@ pub struct Kernels {
 }
 
 impl Kernels {
-    pub fn new(
-        gpu: &Gpu,
-        store: &str,
-        constants: &[(&'static str, f64)],
-        mode: Mode,
-        albedo: bool,
-    ) -> Kernels {
-        let mut c = constants.to_vec();
-        c.push(("MODE", f64::from(mode as u32)));
+    pub fn new(gpu: &Gpu, store: &str, constants: &Constants, mode: Mode, albedo: bool) -> Kernels {
+        let mut c = constants.clone();
+        c.count(Override::Mode, mode as u32);
         let k = |name| Kernel::new(gpu, name, store, &c);
         let waves = mode != Mode::Cast;
-        let defers = c.iter().any(|&(n, v)| n == "DEFER_SLOTS" && v > 0.0);
+        let defers = c.0.get(&Override::DeferSlots).is_some_and(|&v| v > 0.0);
         let suspending = defers.then(|| {
             let mut c = c.clone();
-            c.retain(|&(n, _)| n != "DEFER_SLOTS");
-            c.push(("DEFER_SLOTS", 0.0));
+            c.count(Override::DeferSlots, 0);
             Kernel::new(gpu, "trace", store, &c)
         });
         Kernels {
@@ -226,7 +254,6 @@ impl Kernels {
             args: k("args"),
             requesters: k("requesters"),
             shade: k("shade"),
-            probe: k("probe"),
             spawn: waves.then(|| k("spawn")),
             gather: waves.then(|| k("gather")),
             albedo: albedo.then(|| k("albedo")),

@@ -3,6 +3,7 @@
 //! layout tests (`tests/all/layout.rs`) compare every member's offset with naga's layout of the
 //! composed kernels, and the layout probe reads every member back through a shader.
 
+use super::shaders::wgsl;
 use bytemuck::{Pod, Zeroable};
 
 /// `Params` in `shaders/shared/params.wgsl`: the uniform of every kernel that reads the scene.
@@ -63,23 +64,24 @@ pub struct Params {
 }
 const _: () = assert!(std::mem::size_of::<Params>() == 208);
 
-/// `Params.flags` and `RayState.flags` values.
+/// `Params.flags` and `RayState.flags` values, as the WGSL declares them.
 pub mod flags {
+    use crate::gpu::shaders::wgsl;
     /// Params: jitter primary rays in the pixel.
-    pub const JITTER: u32 = 1;
+    pub const JITTER: u32 = wgsl::JITTER;
     /// Params: primary rays that miss the root box skip traversal.
-    pub const CULL: u32 = 2;
+    pub const CULL: u32 = wgsl::CULL;
     /// Params: the first pass of a render (the shade kernel resets the pixels).
-    pub const FIRST_SAMPLE: u32 = 4;
+    pub const FIRST_SAMPLE: u32 = wgsl::FIRST_SAMPLE;
     /// Params: `sample2` hashes independent uniform numbers (default: Owen-scrambled Sobol').
-    pub const SAMPLER_INDEPENDENT: u32 = 8;
+    pub const SAMPLER_INDEPENDENT: u32 = wgsl::SAMPLER_INDEPENDENT;
     /// Params: a parallel projection (rays along `forward` from the image plane).
-    pub const PARALLEL: u32 = 16;
+    pub const PARALLEL: u32 = wgsl::PARALLEL;
     /// RayState: stop at the first hit found.
-    pub const ANY_HIT: u32 = 1;
+    pub const ANY_HIT: u32 = wgsl::ANY_HIT;
     /// RayState: the ray starts at the camera, on no surface (no proof of a positive hit
     /// distance beyond rounding is needed).
-    pub const FROM_CAMERA: u32 = 2;
+    pub const FROM_CAMERA: u32 = wgsl::FROM_CAMERA;
 }
 
 /// `RayState` in `shaders/shared/ray.wgsl`.
@@ -118,12 +120,13 @@ pub struct RayState {
 }
 const _: () = assert!(std::mem::size_of::<RayState>() == 112);
 
-/// `RayState.status` values.
+/// `RayState.status` values, as the WGSL declares them.
 pub mod status {
-    pub const LIVE: u32 = 0;
-    pub const DONE: u32 = 1;
-    pub const OUTSIDE: u32 = 2;
-    pub const OVERFLOW: u32 = 3;
+    use crate::gpu::shaders::wgsl;
+    pub const LIVE: u32 = wgsl::LIVE;
+    pub const DONE: u32 = wgsl::DONE;
+    pub const OUTSIDE: u32 = wgsl::OUTSIDE;
+    pub const OVERFLOW: u32 = wgsl::OVERFLOW;
 }
 
 /// `MeshInfo` in `shaders/shared/scene.wgsl`: a mesh-table entry's first primitive, colour and
@@ -146,11 +149,12 @@ pub struct MeshInfo {
 }
 const _: () = assert!(std::mem::size_of::<MeshInfo>() == 48);
 
-/// `MeshInfo.look` values.
+/// `MeshInfo.look` values, as the WGSL declares them.
 pub mod look {
-    pub const CONSTANT: u32 = 0;
-    pub const SCALARS: u32 = 1;
-    pub const COLORS: u32 = 2;
+    use crate::gpu::shaders::wgsl;
+    pub const CONSTANT: u32 = wgsl::LOOK_CONSTANT;
+    pub const SCALARS: u32 = wgsl::LOOK_SCALARS;
+    pub const COLORS: u32 = wgsl::LOOK_COLORS;
 }
 
 /// `Pixel` in `shaders/shared/shading.wgsl`: the shade kernel's output for one ray.
@@ -223,6 +227,7 @@ pub struct Light {
 
 /// Lights a pipeline can take (`MAX_LIGHTS` in `shaders/shared/shading.wgsl`).
 pub const MAX_LIGHTS: usize = crate::shading::MAX_LIGHTS;
+const _: () = assert!(MAX_LIGHTS == wgsl::MAX_LIGHTS as usize);
 
 /// `ShadeParams` in `shaders/shared/shading.wgsl`: what the shade, spawn and gather kernels read.
 #[repr(C)]
@@ -253,6 +258,20 @@ const _: () = assert!(std::mem::size_of::<ShadeParams>() == 224);
 
 /// No block, no row, no hit (WGSL's `NONE`): the distributed cache's empty entry.
 pub const NONE: u32 = crate::dc::NONE;
+const _: () = assert!(NONE == wgsl::NONE);
+// The host's values that the kernels declare again, checked by the build: the tile edge, and
+// the shading modes (`MODE_*` in shaders/shared/shading.wgsl, the `MODE` override's values).
+const _: () = assert!(crate::mirror::tiles::TILE == wgsl::TILE);
+// The sRGB decode table follows the colormaps in the palette (`colormap::palette`).
+const _: () = assert!(
+    crate::colormap::ENTRIES * crate::colormap::Colormap::ALL.len() == wgsl::SRGB_LEVELS as usize
+);
+const _: () = assert!(
+    crate::shading::Mode::Cast as u32 == wgsl::MODE_CAST
+        && crate::shading::Mode::Shadows as u32 == wgsl::MODE_SHADOWS
+        && crate::shading::Mode::Ao as u32 == wgsl::MODE_AO
+        && crate::shading::Mode::Path as u32 == wgsl::MODE_PATH
+);
 /// The kernels' finite stand-in for an unbounded ray (`FAR` in `shaders/shared/ray.wgsl`):
 /// finite, because WGSL promises nothing for infinities.
 pub const FAR: f32 = 3.0e38;

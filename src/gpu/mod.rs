@@ -1,14 +1,30 @@
 //! The GPU: adapter choice, device set-up with the adapter's own limits, and the tracer that runs
 //! the WGSL kernels (docs/ARCHITECTURE.md, The GPU side).
 
+/// Byte offset and size of a `RoundReadback` member.
+macro_rules! member {
+    ($field:ident, $ty:ty) => {
+        (
+            std::mem::offset_of!($crate::gpu::layout::RoundReadback, $field) as u64,
+            std::mem::size_of::<$ty>() as u64,
+        )
+    };
+}
+
 mod batch;
 pub mod compose;
-mod frame;
+mod density;
+mod faults;
+pub mod frame;
 mod kernels;
+mod lanes;
 pub mod layout;
 pub mod probe;
+pub mod rays;
 mod rounds;
 pub mod row_table;
+pub mod scheduler;
+mod shade;
 pub mod shade_params;
 pub mod shaders;
 mod store;

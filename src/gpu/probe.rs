@@ -2,8 +2,9 @@
 //! through the kernels' own accessors and writes it out as raw words, so a test can compare each
 //! member with what the host wrote.
 
-use super::kernels::Dispatch;
+use super::kernels::{Constants, Dispatch, Kernel};
 use super::layout::{MirrorCase, MirrorResult, Params, RayState, ShadeParams};
+use super::shaders::Override;
 use super::tracer::Tracer;
 use crate::error::Result;
 
@@ -51,7 +52,10 @@ impl Tracer<'_> {
             wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         );
         let lists = super::batch::Lists::FILL_FIRST;
-        let kernel = &self.kernels.probe;
+        // Built here, for the tests that call it: production tracers never build the probe.
+        let mut constants = self.constants.clone();
+        constants.count(Override::Mode, self.settings.shading.mode as u32);
+        let kernel = Kernel::new(gpu, "probe", self.store.module(), &constants);
         let bound = kernel.bind(gpu, |name| match name {
             "probe_rays" => Some(input.as_entire_binding()),
             "out" => Some(out.as_entire_binding()),
@@ -59,7 +63,7 @@ impl Tracer<'_> {
             _ => self.resource(name, lists),
         });
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        kernel.dispatch(&mut enc, &bound, Dispatch::Direct(1), None);
+        kernel.dispatch(&mut enc, &bound, Dispatch::Over(1), None);
         gpu.queue.submit([enc.finish()]);
         let data = gpu.read_buffer(&out, 0, bytes)?;
         gpu.write(&self.params_buf, &self.params);
@@ -78,11 +82,13 @@ pub fn run_mirror(
     rows: &[u32],
 ) -> Result<Vec<MirrorResult>> {
     use wgpu::BufferUsages as U;
-    let kernel = super::kernels::Kernel::new(
+    let mut constants = Constants::default();
+    constants.count(Override::RowTableWidth, super::row_table::WIDTH);
+    let kernel = Kernel::new(
         gpu,
         "mirror",
         super::shaders::Store::Texture.module(),
-        &[("ROW_TABLE_WIDTH", f64::from(super::row_table::WIDTH))],
+        &constants,
     );
     let init = |label, contents: &[u8], usage| gpu.buffer_init(label, contents, usage);
     let params_buf = init("params", bytemuck::bytes_of(params), U::UNIFORM);
@@ -117,7 +123,7 @@ pub fn run_mirror(
         _ => None,
     });
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let groups = Dispatch::Direct((cases.len() as u32).div_ceil(64));
+    let groups = Dispatch::Over(cases.len() as u32);
     kernel.dispatch(&mut enc, &bound, groups, None);
     gpu.queue.submit([enc.finish()]);
     let data = gpu.read_buffer(&out, 0, bytes)?;

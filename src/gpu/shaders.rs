@@ -1,6 +1,7 @@
 //! The WGSL kernels as `build.rs` composed and validated them (docs/ARCHITECTURE.md, Shaders):
-//! each kernel's text, its bindings and pipeline constants as naga reflects them, and the layout
-//! of every WGSL struct (checked against the host structs by the layout tests).
+//! each kernel's text, its bindings, pipeline constants and workgroup size as naga reflects
+//! them, the `Override` enum of every pipeline constant, the kernels' `u32` constants (`wgsl`),
+//! and the layout of every WGSL struct (checked against the host structs by the layout tests).
 
 /// Where the GPU keeps blocks; both give the kernels `fn texel(block, t) -> vec4<u32>`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -63,7 +64,16 @@ pub struct KernelInfo {
     /// Sorted by (group, binding).
     pub bindings: &'static [BindingInfo],
     /// The pipeline-overridable constants it declares.
-    pub overrides: &'static [&'static str],
+    pub overrides: &'static [Override],
+    /// `@workgroup_size` of its entry point.
+    pub workgroup_size: [u32; 3],
+}
+
+/// The WGSL type of an override: which values the host may give it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OverrideType {
+    Bool,
+    U32,
 }
 
 /// A WGSL struct's size and member offsets, as naga lays it out.

@@ -3,7 +3,8 @@
 //! when one resource cannot hold them all) or one storage buffer, within the adapter's limits.
 
 use super::Gpu;
-use super::shaders::Store;
+use super::kernels::Constants;
+use super::shaders::{Override, Store};
 use crate::blocks::Format;
 use crate::error::{Error, Result};
 
@@ -168,15 +169,13 @@ impl BlockStore {
 
     /// The pipeline constants of the store's addressing (`ROWS_PER_LAYER`, `LAYERS_PER_PART`);
     /// a buffer has one part of one-row layers.
-    pub fn constants(&self) -> [(&'static str, f64); 2] {
+    pub fn set_constants(&self, c: &mut Constants) {
         let (rows, layers) = match self {
             BlockStore::Texture { shape, .. } => (shape.rows_per_layer, shape.layers_per_part),
             BlockStore::Buffer { .. } => (1, 1),
         };
-        [
-            ("ROWS_PER_LAYER", f64::from(rows)),
-            ("LAYERS_PER_PART", f64::from(layers)),
-        ]
+        c.count(Override::RowsPerLayer, rows)
+            .count(Override::LayersPerPart, layers);
     }
 
     /// Textures the store spans (1 for a buffer).

@@ -7,7 +7,8 @@
 use crate::dc::CacheMap;
 use crate::dc::trace::{FrameSummary, FrameTrace};
 use crate::error::Result;
-use crate::gpu::tracer::{Frame, FrameStats, Rect, Tracer};
+use crate::gpu::frame::{Frame, FrameStats, Rect};
+use crate::gpu::tracer::Tracer;
 use crate::scene::Camera;
 use std::path::Path;
 

@@ -55,7 +55,7 @@ use super::read::{RankFrame, Tile, Traces};
 use crate::cluster::Roles;
 use crate::cluster::schedule::Schedule;
 use crate::error::{Error, Result};
-use crate::gpu::tracer::Rect;
+use crate::gpu::frame::Rect;
 use serde::Serialize;
 
 #[derive(Clone, Debug)]

@@ -7,7 +7,7 @@ use anyhow::{Result, bail};
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::Gpu;
-use dcrt::gpu::tracer::FrameStats;
+use dcrt::gpu::frame::FrameStats;
 use dcrt::progress::Progress;
 use dcrt::render::frames::View;
 use dcrt::render::{DcOptions, Prepared, mib};
@@ -178,7 +178,7 @@ pub fn run(
         // The counts of every repeat's warm frames together (the same frames each time).
         let warm: Vec<FrameStats> = runs[i].iter().flat_map(|r| r[1..].to_vec()).collect();
         let n = warm.len() as f64;
-        let sum = |f: &dyn Fn(&dcrt::gpu::tracer::FrameStats) -> f64| -> f64 {
+        let sum = |f: &dyn Fn(&dcrt::gpu::frame::FrameStats) -> f64| -> f64 {
             warm.iter().map(f).sum::<f64>()
         };
         let secs = sum(&|s| s.seconds);
