@@ -4,7 +4,7 @@
 //! together; a batch whose rays are done is shaded and read back in its lane.
 
 use super::batch::TILE_RAYS;
-use super::faults::{requester_lane, serve_order};
+use super::faults::{FaultList, requester_lane, serve_order};
 use super::frame::{FrameStats, Rect};
 use super::layout::{Pixel, RoundReadback};
 use super::rounds::{Gen, add_batch_stats, stall_error, stalled};
@@ -60,15 +60,124 @@ pub(super) struct RectPlan {
     pub per_batch: u32,
 }
 
+/// The state of one `render_overlapped` call: the batches in the lanes and those waiting, the
+/// rectangles with batches left, and what the last round said about the cache.
+struct Scheduler {
+    /// Per lane, the batch it holds.
+    runs: Vec<Option<LaneRun>>,
+    /// Batches not started yet (the rest of a rectangle's tiles first).
+    pending: VecDeque<LaneRun>,
+    /// The pixels of rectangles with batches left, by `LaneRun::slot`.
+    open: Vec<Option<OpenRect>>,
+    /// The source has no rectangle left this frame.
+    ended: bool,
+    /// Rounds so far.
+    round: u32,
+    /// Tiles handed out and done, for the progress callback (in `passes`).
+    total_tiles: u64,
+    done_tiles: u64,
+    passes: Option<u64>,
+    /// Lines the last round used, and whether its faults that got no line are few enough for a
+    /// new batch to start beside them (`next_batch_may_start`, `few_left_waiting`).
+    used_lines: u32,
+    all_served: bool,
+    /// Batches started this frame: a batch's age.
+    started_batches: u64,
+    /// The cache's lines, whether it keeps the tails' lines (`lru`), whether every node block is
+    /// resident.
+    lines: u32,
+    keeps_tails: bool,
+    nodes_resident: bool,
+}
+
+/// What one round's read-backs said of the lanes it traced.
+struct RoundOutcome {
+    /// Rays still live in every lane.
+    live: u32,
+    /// Whether any ray took a step or ended (`stalled`).
+    moved: bool,
+    /// Lanes whose batch has no live ray left.
+    done: Vec<usize>,
+    /// The round's GPU time, when the adapter has timestamps.
+    gpu_ms: Option<f64>,
+}
+
+impl Scheduler {
+    fn new(tracer: &Tracer<'_>, passes: Option<u64>) -> Scheduler {
+        let dc = tracer.dc.as_ref();
+        Scheduler {
+            runs: (0..=tracer.spares.len()).map(|_| None).collect(),
+            pending: VecDeque::new(),
+            open: Vec::new(),
+            ended: false,
+            round: 0,
+            total_tiles: 0,
+            done_tiles: 0,
+            passes,
+            used_lines: 0,
+            all_served: false,
+            started_batches: 0,
+            lines: dc.map_or(0, |dc| dc.policy.lines()),
+            keeps_tails: dc.is_some_and(|dc| dc.policy.map() == CacheMap::Lru),
+            nodes_resident: dc.is_some_and(|dc| dc.policy.nodes_resident()),
+        }
+    }
+
+    /// Whether a batch may start now (`next_batch_may_start`).
+    fn may_start(&self) -> bool {
+        let busy = self.busy();
+        let in_tail = self.runs.iter().flatten().all(LaneRun::in_tail);
+        let resuming = self.keeps_tails && self.all_served;
+        let lines = (self.used_lines, self.lines);
+        next_batch_may_start(busy, in_tail, resuming, self.keeps_tails, lines)
+    }
+
+    fn busy(&self) -> bool {
+        self.runs.iter().any(Option::is_some)
+    }
+
+    fn free_lane(&self) -> Option<usize> {
+        self.runs.iter().position(Option::is_none)
+    }
+
+    /// The lanes with a batch, in order.
+    fn active(&self) -> Vec<usize> {
+        (0..self.runs.len())
+            .filter(|&l| self.runs[l].is_some())
+            .collect()
+    }
+
+    fn run(&mut self, l: usize) -> &mut LaneRun {
+        self.runs[l].as_mut().expect("an active lane has a batch")
+    }
+
+    /// Orders a round's faults for service: each listed block counts to the tile of its least
+    /// requester, and the oldest batch's blocks get lines first (`serve_order`): its rays hold a
+    /// lane, and its faults would otherwise wait behind those of every newer batch.
+    fn order_faults(&mut self, faults: &mut FaultList) {
+        let mut ages = Vec::with_capacity(faults.blocks.len());
+        for (&block, &who) in faults.blocks.iter().zip(&faults.requesters) {
+            let run = requester_lane(who)
+                .and_then(|(l, ray)| Some((self.runs.get_mut(l)?.as_mut()?, ray)));
+            ages.push(run.map_or(u64::MAX, |(run, ray)| {
+                run.note_fault(block, ray / TILE_RAYS);
+                serve_order(run.age, ray)
+            }));
+        }
+        faults.order_by(&ages);
+    }
+}
+
 impl Tracer<'_> {
     /// Traces and shades the rectangles `source` hands out, batches of them overlapping
     /// (docs/ARCHITECTURE.md, Overlapping batches): when the live rays of every batch in flight
     /// are down to a `TAIL_SHARE`th of those it started with (and, unless the cache is `lru`,
-    /// the last round used at most half the cache's lines), the next batch (of this rectangle, or of the next one the source
-    /// has) starts in a free lane, and each round dispatches `trace` in every lane with a batch
-    /// and serves their faults together. A batch whose rays are all done is resolved, shaded and
-    /// read back in its lane; a rectangle whose batches are all done goes to `source.done`. With
-    /// `passes`, each finished batch is reported to the progress callback.
+    /// the last round used at most half the cache's lines), the next batch (of this rectangle,
+    /// or of the next one the source has) starts in a free lane, and each round dispatches
+    /// `trace` in every lane with a batch and serves their faults together. A batch whose rays
+    /// are all done is resolved, shaded and read back in its lane; a rectangle whose batches
+    /// are all done goes to `source.done`. With `passes`, each finished batch is reported to the
+    /// progress callback.
     pub(super) fn render_overlapped(
         &mut self,
         basis: &CameraBasis,
@@ -78,218 +187,219 @@ impl Tracer<'_> {
         stats: &mut FrameStats,
     ) -> Result<()> {
         let gpu = self.gpu;
-        let mut runs: Vec<Option<LaneRun>> = (0..=self.spares.len()).map(|_| None).collect();
-        // Batches not started yet, and the pixels of rectangles with batches left.
-        let mut pending: VecDeque<LaneRun> = VecDeque::new();
-        let mut open: Vec<Option<OpenRect>> = Vec::new();
-        let mut ended = false;
-        let mut round = 0;
-        // Tiles handed out and done, for the progress callback.
-        let (mut total_tiles, mut done_tiles) = (0u64, 0u64);
-        // Lines the last round used, and whether its faults that got no line are few enough for
-        // a new batch to start beside them (`next_batch_may_start`, `few_left_waiting`).
-        let mut used_lines = 0;
-        let mut all_served = false;
-        // Batches started this frame: a batch's age.
-        let mut started_batches = 0u64;
-        let lines = self.dc.as_ref().map_or(0, |dc| dc.policy.lines());
-        let keeps_tails = self
-            .dc
-            .as_ref()
-            .is_some_and(|dc| dc.policy.map() == CacheMap::Lru);
-        let nodes_resident = self
-            .dc
-            .as_ref()
-            .is_some_and(|dc| dc.policy.nodes_resident());
+        let mut s = Scheduler::new(self, passes);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
         loop {
             let t = Instant::now();
-            let busy = runs.iter().any(Option::is_some);
-            let in_tail = runs.iter().flatten().all(LaneRun::in_tail);
-            let tails = next_batch_may_start(
-                busy,
-                in_tail,
-                keeps_tails && all_served,
-                keeps_tails,
-                (used_lines, lines),
-            );
-            let free = runs.iter().position(Option::is_none);
-            if tails && free.is_some() && pending.is_empty() && !ended {
-                match source.next(busy)? {
-                    Next::Rect(rect) => {
-                        let plan = self.begin_rect(basis, background, rect)?;
-                        let slot = open.len();
-                        // All its tiles, waiting; each batch takes its share when it starts.
-                        let mut all = LaneRun::new(rect, plan.tiling, slot, 0, plan.tiles);
-                        all.per_batch = plan.per_batch;
-                        pending.push_back(all);
-                        total_tiles += u64::from(plan.tiles);
-                        let pixels = vec![Pixel::default(); rect.pixels()];
-                        open.push(Some(OpenRect { pixels, batches: 1 }));
-                        stats.rays += rect.pixels() as u64;
-                        stats.samples = self.params.spp;
-                        self.several_batches |= open.len() > 1;
-                    }
-                    Next::Later => {}
-                    Next::End => ended = true,
-                }
+            let may_start = s.may_start();
+            let free = s.free_lane();
+            if may_start && free.is_some() && s.pending.is_empty() && !s.ended {
+                self.take_rect(&mut s, basis, background, source, stats)?;
             }
-            let start = free.filter(|_| tails);
-            if let Some((l, mut run)) = start.and_then(|l| pending.pop_front().map(|r| (l, r))) {
-                let lane_rays = self.lane(l).0.rays_cap;
-                let n = self.batch_tiles(&run, lane_rays);
-                // A batch past its lane's buffers would lose rays silently: refuse it.
-                if u64::from(n) * u64::from(TILE_RAYS) > u64::from(lane_rays) {
-                    return Err(Error::Gpu(format!(
-                        "a batch of {n} tiles does not fit lane {l} of {lane_rays} rays"
-                    )));
-                }
-                if n < run.tiles {
-                    let mut rest =
-                        LaneRun::new(run.rect, run.tiling, run.slot, run.first + n, run.tiles - n);
-                    rest.per_batch = run.per_batch;
-                    pending.push_front(rest);
-                    run.tiles = n;
-                    if let Some(r) = open[run.slot].as_mut() {
-                        r.batches += 1;
-                    }
-                }
-                self.set_rect(run.rect, run.tiling);
-                self.params.first_tile = run.first;
-                self.params.batch_rays = run.tiles * TILE_RAYS;
-                self.record_start(&mut enc, l, Gen::Primary);
-                run.age = started_batches;
-                started_batches += 1;
-                runs[l] = Some(run);
+            if let Some(l) = free.filter(|_| may_start) {
+                self.start_batch(&mut s, l, &mut enc)?;
             }
-            let active: Vec<usize> = (0..runs.len()).filter(|&l| runs[l].is_some()).collect();
+            let active = s.active();
             if active.is_empty() {
-                if ended && pending.is_empty() {
+                if s.ended && s.pending.is_empty() {
                     return Ok(());
                 }
                 // The source had nothing at hand while nothing was in flight: ask again.
                 continue;
             }
-            for (i, &l) in active.iter().enumerate() {
-                let run = runs[l].as_mut().expect("an active lane has a batch");
-                let ends = (i == 0, i + 1 == active.len());
-                run.list = self.record_round(&mut enc, l, run.list, ends);
-                run.rounds += 1;
-            }
-            // The timestamps (lane 0's queries) go into the first active lane's read-back.
-            if let (Some((q, resolve)), Some(&l)) = (&self.batch.timestamps, active.first()) {
-                let (at, size) = member!(timestamps, [u64; 2]);
-                enc.resolve_query_set(q, 0..2, resolve, 0);
-                enc.copy_buffer_to_buffer(resolve, 0, &self.lane(l).0.readback, at, size);
-            }
+            self.record_lanes(&mut s, &active, &mut enc);
             self.copy_faults(&mut enc);
             let submitted = Instant::now();
             gpu.queue.submit([enc.finish()]);
-            round += 1;
+            s.round += 1;
             stats.rounds += active.len() as u32;
             stats.shared_rounds += u32::from(active.len() > 1);
-            let mut live = 0;
-            let mut gpu_ms = None;
-            let mut done = Vec::new();
-            let mut dispatched = Vec::new();
-            let mut moved = false;
-            for &l in &active {
-                let data = gpu.map_read(&self.lane(l).0.readback)?;
-                let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
-                self.check_overflows(&r.stats)?;
-                if Some(&l) == active.first() {
-                    gpu_ms = self.round_gpu_ms(&r, stats);
-                }
-                let run = runs[l].as_mut().expect("an active lane has a batch");
-                // The rays this round traced in the lane.
-                let traced = if run.started.is_none() {
-                    r.started
-                } else {
-                    run.live
-                };
-                dispatched.push((l, traced));
-                run.started.get_or_insert(r.started);
-                moved |= (r.stats.steps, r.counter.count) != (run.steps, run.live);
-                run.steps = r.stats.steps;
-                run.live = r.counter.count;
-                live += run.live;
-                if run.live == 0 {
-                    add_batch_stats(stats, &r.stats, run.rounds);
-                    stats.traced_rays += u64::from(run.started.unwrap_or(0));
-                    done.push(l);
-                }
-            }
+            let out = self.read_lanes(&mut s, &active, stats)?;
             let waited = submitted.elapsed();
             let mut faults = self.read_faults()?;
-            if stalled(live, moved, faults.header.count) {
-                return Err(stall_error(live, round));
+            if stalled(out.live, out.moved, faults.header.count) {
+                return Err(stall_error(out.live, s.round));
             }
             let waiters = gpu.map_read(&self.batch.waiter_readback)?;
-            let used: &[u8] = &waiters[4 * lines as usize..8 * lines as usize];
-            used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
-            // Each listed block counts to the tile of its least requester, and the oldest
-            // batch's blocks get lines first (`serve_order`): its rays hold a lane, and its
-            // faults would otherwise wait behind those of every newer batch.
-            let mut ages = Vec::with_capacity(faults.blocks.len());
-            for (&block, &who) in faults.blocks.iter().zip(&faults.requesters) {
-                let run = requester_lane(who)
-                    .and_then(|(l, ray)| Some((runs.get_mut(l)?.as_mut()?, ray)));
-                ages.push(run.map_or(u64::MAX, |(run, ray)| {
-                    run.note_fault(block, ray / TILE_RAYS);
-                    serve_order(run.age, ray)
-                }));
+            let used: &[u8] = &waiters[4 * s.lines as usize..8 * s.lines as usize];
+            s.used_lines = used.chunks(4).filter(|u| u != &[0; 4]).count() as u32;
+            s.order_faults(&mut faults);
+            for &l in &out.done {
+                let run = s.run(l);
+                let (rect, tiling, tiles) =
+                    (run.rect, run.tiling, run.first..run.first + run.tiles);
+                let faults = std::mem::take(&mut run.tile_faults);
+                self.note_batch_faults(rect, tiling, tiles, &faults);
             }
-            faults.order_by(&ages);
-            for &l in &done {
-                let run = runs[l].as_ref().expect("a finished lane has a batch");
-                let tiles = run.first..run.first + run.tiles;
-                self.note_batch_faults(run.rect, run.tiling, tiles, &run.tile_faults);
-            }
-            let waiting = self.serve_faults(
-                &faults,
-                &waiters,
-                live,
-                round,
-                (submitted, waited, gpu_ms),
-                stats,
-            )?;
-            all_served = few_left_waiting(waiting, lines, nodes_resident);
+            let when = (submitted, waited, out.gpu_ms);
+            let waiting = self.serve_faults(&faults, &waiters, out.live, s.round, when, stats)?;
+            s.all_served = few_left_waiting(waiting, s.lines, s.nodes_resident);
             stats.trace_seconds += t.elapsed().as_secs_f64();
-            for l in done {
-                let t = Instant::now();
-                let run = runs[l].take().expect("a finished lane had a batch");
-                let rect = open[run.slot]
-                    .as_mut()
-                    .expect("a batch's rectangle is open");
-                self.set_rect(run.rect, run.tiling);
-                self.params.first_tile = run.first;
-                self.params.batch_rays = run.tiles * TILE_RAYS;
-                self.swap_lanes(l);
-                let shaded = self.shade_batch(
-                    (run.first, run.tiles),
-                    (run.rect, run.tiling),
-                    &mut rect.pixels,
-                    stats,
-                );
-                self.swap_lanes(l);
-                shaded?;
-                rect.batches -= 1;
-                if rect.batches == 0 {
-                    let pixels = std::mem::take(&mut rect.pixels);
-                    open[run.slot] = None;
-                    source.done(run.rect, pixels)?;
-                }
-                stats.shade_seconds += t.elapsed().as_secs_f64();
-                done_tiles += u64::from(run.tiles);
-                if let (Some(p), Some(n)) = (self.progress.as_mut(), passes) {
-                    // Batches vary in size: the share of tiles done, in passes.
-                    p((done_tiles * n).div_ceil(total_tiles.max(1)), n);
-                }
+            for l in out.done {
+                self.finish_batch(&mut s, l, source, stats)?;
             }
             enc = gpu.device.create_command_encoder(&Default::default());
             self.clear_faults(&mut enc);
         }
+    }
+
+    /// Asks the source for its next rectangle; a rectangle it has is planned and waits whole as
+    /// one pending batch, which takes its share of the tiles when it starts.
+    fn take_rect(
+        &mut self,
+        s: &mut Scheduler,
+        basis: &CameraBasis,
+        background: [f32; 3],
+        source: &mut dyn RectSource,
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        match source.next(s.busy())? {
+            Next::Rect(rect) => {
+                let plan = self.begin_rect(basis, background, rect)?;
+                let slot = s.open.len();
+                let mut all = LaneRun::new(rect, plan.tiling, slot, 0, plan.tiles);
+                all.per_batch = plan.per_batch;
+                s.pending.push_back(all);
+                s.total_tiles += u64::from(plan.tiles);
+                let pixels = vec![Pixel::default(); rect.pixels()];
+                s.open.push(Some(OpenRect { pixels, batches: 1 }));
+                stats.rays += rect.pixels() as u64;
+                stats.samples = self.params.spp;
+                self.several_batches |= s.open.len() > 1;
+            }
+            Next::Later => {}
+            Next::End => s.ended = true,
+        }
+        Ok(())
+    }
+
+    /// Starts the next pending batch, if any, in free lane `l`: its tiles (`batch_tiles`; the
+    /// rest of its rectangle's go back to the front of the queue) and its ray generation.
+    fn start_batch(
+        &mut self,
+        s: &mut Scheduler,
+        l: usize,
+        enc: &mut wgpu::CommandEncoder,
+    ) -> Result<()> {
+        let Some(mut run) = s.pending.pop_front() else {
+            return Ok(());
+        };
+        let lane_rays = self.lane(l).0.rays_cap;
+        let n = self.batch_tiles(&run, lane_rays);
+        // A batch past its lane's buffers would lose rays silently: refuse it.
+        if u64::from(n) * u64::from(TILE_RAYS) > u64::from(lane_rays) {
+            return Err(Error::Gpu(format!(
+                "a batch of {n} tiles does not fit lane {l} of {lane_rays} rays"
+            )));
+        }
+        if n < run.tiles {
+            let mut rest =
+                LaneRun::new(run.rect, run.tiling, run.slot, run.first + n, run.tiles - n);
+            rest.per_batch = run.per_batch;
+            s.pending.push_front(rest);
+            run.tiles = n;
+            if let Some(r) = s.open[run.slot].as_mut() {
+                r.batches += 1;
+            }
+        }
+        self.set_rect(run.rect, run.tiling);
+        self.params.first_tile = run.first;
+        self.params.batch_rays = run.tiles * TILE_RAYS;
+        self.record_start(enc, l, Gen::Primary);
+        run.age = s.started_batches;
+        s.started_batches += 1;
+        s.runs[l] = Some(run);
+        Ok(())
+    }
+
+    /// Records one round in every `active` lane; the timestamps (lane 0's queries) go into the
+    /// first active lane's read-back.
+    fn record_lanes(&self, s: &mut Scheduler, active: &[usize], enc: &mut wgpu::CommandEncoder) {
+        for (i, &l) in active.iter().enumerate() {
+            let run = s.run(l);
+            let ends = (i == 0, i + 1 == active.len());
+            run.list = self.record_round(enc, l, run.list, ends);
+            run.rounds += 1;
+        }
+        if let (Some((q, resolve)), Some(&l)) = (&self.batch.timestamps, active.first()) {
+            let (at, size) = member!(timestamps, [u64; 2]);
+            enc.resolve_query_set(q, 0..2, resolve, 0);
+            enc.copy_buffer_to_buffer(resolve, 0, &self.lane(l).0.readback, at, size);
+        }
+    }
+
+    /// Reads back the round of every `active` lane: its live rays, whether they moved, the
+    /// lanes whose batch is done (their statistics added to the frame's).
+    fn read_lanes(
+        &self,
+        s: &mut Scheduler,
+        active: &[usize],
+        stats: &mut FrameStats,
+    ) -> Result<RoundOutcome> {
+        let mut out = RoundOutcome {
+            live: 0,
+            moved: false,
+            done: Vec::new(),
+            gpu_ms: None,
+        };
+        for &l in active {
+            let data = self.gpu.map_read(&self.lane(l).0.readback)?;
+            let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
+            self.check_overflows(&r.stats)?;
+            if Some(&l) == active.first() {
+                out.gpu_ms = self.round_gpu_ms(&r, stats);
+            }
+            let run = s.run(l);
+            run.started.get_or_insert(r.started);
+            out.moved |= (r.stats.steps, r.counter.count) != (run.steps, run.live);
+            run.steps = r.stats.steps;
+            run.live = r.counter.count;
+            out.live += run.live;
+            if run.live == 0 {
+                add_batch_stats(stats, &r.stats, run.rounds);
+                stats.traced_rays += u64::from(run.started.unwrap_or(0));
+                out.done.push(l);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Shades and reads back the finished batch of lane `l` in its lane; gives its rectangle to
+    /// the source when it was the rectangle's last batch, and reports progress.
+    fn finish_batch(
+        &mut self,
+        s: &mut Scheduler,
+        l: usize,
+        source: &mut dyn RectSource,
+        stats: &mut FrameStats,
+    ) -> Result<()> {
+        let t = Instant::now();
+        let run = s.runs[l].take().expect("a finished lane had a batch");
+        let rect = s.open[run.slot]
+            .as_mut()
+            .expect("a batch's rectangle is open");
+        self.set_rect(run.rect, run.tiling);
+        self.params.first_tile = run.first;
+        self.params.batch_rays = run.tiles * TILE_RAYS;
+        self.swap_lanes(l);
+        let place = (run.rect, run.tiling);
+        let shaded = self.shade_batch((run.first, run.tiles), place, &mut rect.pixels, stats);
+        self.swap_lanes(l);
+        shaded?;
+        rect.batches -= 1;
+        if rect.batches == 0 {
+            let pixels = std::mem::take(&mut rect.pixels);
+            s.open[run.slot] = None;
+            source.done(run.rect, pixels)?;
+        }
+        stats.shade_seconds += t.elapsed().as_secs_f64();
+        s.done_tiles += u64::from(run.tiles);
+        if let (Some(p), Some(n)) = (self.progress.as_mut(), s.passes) {
+            // Batches vary in size: the share of tiles done, in passes.
+            p((s.done_tiles * n).div_ceil(s.total_tiles.max(1)), n);
+        }
+        Ok(())
     }
 
     /// The tiles the next batch of `run`'s rectangle takes. With a short cache and last frame's

@@ -3,8 +3,9 @@
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
+use dcrt::gpu::frame::{Frame, FrameStats};
 use dcrt::gpu::layout::Pixel;
-use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
+use dcrt::gpu::tracer::Settings;
 use dcrt::reference::{Hit, Reference};
 use dcrt::render::Prepared;
 use dcrt::scene::ray::Ray;

@@ -4,8 +4,10 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize, Replicate};
+use dcrt::gpu::frame::{Frame, Rect};
 use dcrt::gpu::layout::Pixel;
-use dcrt::gpu::tracer::{FaultMode, Frame, Next, OverlapMode, Rect, RectSource, Settings};
+use dcrt::gpu::scheduler::{Next, RectSource};
+use dcrt::gpu::tracer::{FaultMode, OverlapMode, Settings};
 use dcrt::render::frames::{Role, summarize};
 use dcrt::render::{DcOptions, Prepared};
 use dcrt::scene::generate::Generator;

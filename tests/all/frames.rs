@@ -6,7 +6,8 @@
 use crate::common::*;
 use dcrt::dc::trace::FrameTrace;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::{Frame, FrameStats, Settings};
+use dcrt::gpu::frame::{Frame, FrameStats};
+use dcrt::gpu::tracer::Settings;
 use dcrt::render::DcOptions;
 use dcrt::render::frames::{
     FrameBody, FrameCtx, FramePlan, Role, View, run_frames, run_images, summarize,

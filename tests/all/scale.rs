@@ -51,7 +51,7 @@ fn camera_at(center: [f64; 3], radius: f64, distance: f64) -> Camera {
     }
 }
 
-fn shade(p: &Prepared, cam: &Camera, size: u32, sh: Shading) -> dcrt::gpu::tracer::Frame {
+fn shade(p: &Prepared, cam: &Camera, size: u32, sh: Shading) -> dcrt::gpu::frame::Frame {
     let s = Settings {
         shading: sh,
         ..Settings::default()
@@ -277,7 +277,7 @@ fn huge_triangles_close_up_are_hit_as_the_reference_hits_them() {
         let camera = tracer.trace_camera_rays(&rays).unwrap();
         let surface = tracer.trace_rays(&rays).unwrap();
         // (missed, off by more than 1e-4 of the distance).
-        let wrong = |got: &[Option<dcrt::gpu::tracer::RayHit>]| {
+        let wrong = |got: &[Option<dcrt::gpu::rays::RayHit>]| {
             let missed = got.iter().filter(|g| g.is_none()).count();
             let off = got
                 .iter()

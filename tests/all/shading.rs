@@ -4,7 +4,8 @@
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};
-use dcrt::gpu::tracer::{Frame, Settings};
+use dcrt::gpu::frame::Frame;
+use dcrt::gpu::tracer::Settings;
 use dcrt::reference::Reference;
 use dcrt::reference::shade::reference_image;
 use dcrt::render::{DcOptions, Prepared};

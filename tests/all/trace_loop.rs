@@ -2,9 +2,10 @@
 //! is ever truncated), every ray ends done, and a view of nothing is all misses.
 
 use crate::common::*;
+use dcrt::gpu::frame::FrameStats;
 use dcrt::gpu::layout::status;
 use dcrt::gpu::shaders::Store;
-use dcrt::gpu::tracer::{FrameStats, MAX_STEP_BUDGET, Settings};
+use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
 
@@ -206,7 +207,7 @@ fn buffer_and_texture_stores_give_the_same_image() {
 /// than one tile) gives the same pixels as one whole-image render: what the cluster relies on.
 #[test]
 fn rectangles_tile_the_image_exactly() {
-    use dcrt::gpu::tracer::Rect;
+    use dcrt::gpu::frame::Rect;
     let gpu = gpu();
     let (model, camera) = rm();
     let prepared = prepare(model);
