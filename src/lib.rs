@@ -23,6 +23,7 @@ pub mod reference;
 pub mod render;
 pub mod scene;
 pub mod shading;
+pub mod simulate;
 pub mod size;
 pub mod traces;
 

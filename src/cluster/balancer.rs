@@ -7,7 +7,7 @@ use super::startup::Image;
 use super::{Options, Roles};
 use crate::error::Result;
 use crate::gpu::frame::ms;
-use serde_json::json;
+use crate::traces::record::{Event, Grant, GrantKind};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -24,7 +24,7 @@ pub struct Balancer {
     asked: Vec<Option<u32>>,
     ended: Vec<u32>,
     /// Grants per frame, for the traces.
-    events: BTreeMap<u32, Vec<serde_json::Value>>,
+    events: BTreeMap<u32, Vec<Event>>,
     start: Instant,
 }
 
@@ -73,20 +73,33 @@ impl Balancer {
         let first = self.asked[i as usize] != Some(frame);
         self.asked[i as usize] = Some(frame);
         let (grant, kind) = if first {
-            (sched.first(i), "static")
+            (sched.first(i), GrantKind::Static)
         } else {
-            (sched.next_tile().into_iter().collect(), "dynamic")
+            (sched.next_tile().into_iter().collect(), GrantKind::Dynamic)
         };
         let events = self.events.entry(frame).or_default();
         let t = ms(self.start.elapsed());
         for g in &grant {
-            events.push(
-                json!({"type": "grant", "rank": from, "kind": kind, "t_ms": t,
-                               "x": g.x, "y": g.y, "w": g.w, "h": g.h}),
-            );
+            events.push(Event::Grant(Grant {
+                rank: from,
+                kind,
+                t_ms: t,
+                x: Some(g.x),
+                y: Some(g.y),
+                w: Some(g.w),
+                h: Some(g.h),
+            }));
         }
         if grant.is_empty() {
-            events.push(json!({"type": "grant", "rank": from, "kind": "end", "t_ms": t}));
+            events.push(Event::Grant(Grant {
+                rank: from,
+                kind: GrantKind::End,
+                t_ms: t,
+                x: None,
+                y: None,
+                w: None,
+                h: None,
+            }));
             self.ended[i as usize] = frame + 1;
             if self.ended.iter().all(|&e| e > frame) {
                 self.schedules.remove(&frame);
@@ -99,7 +112,7 @@ impl Balancer {
     }
 
     /// The grants of frames every rank has finished asking about.
-    pub fn take_finished_events(&mut self) -> Vec<(u32, Vec<serde_json::Value>)> {
+    pub fn take_finished_events(&mut self) -> Vec<(u32, Vec<Event>)> {
         let done = self.ended.iter().copied().min().unwrap_or(0);
         let frames: Vec<u32> = self.events.range(..done).map(|(&f, _)| f).collect();
         frames

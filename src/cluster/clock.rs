@@ -2,7 +2,7 @@
 //! barrier, takes that instant as the epoch its trace times count from, and notes `MPI_Wtime`
 //! there; rank 0's run id is broadcast so that all ranks' traces name the same run.
 
-use crate::dc::trace::{self, Run};
+use crate::traces::record::{self, Run};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use std::time::Instant;
@@ -19,14 +19,14 @@ pub fn agree(world: &SimpleCommunicator) {
     }
     world.process_at_rank(0).broadcast_into(&mut id[..]);
     world.barrier();
-    trace::set_epoch(Instant::now());
-    trace::set_run(Run {
-        run: trace::run_id(id[0], id[1] as u32),
+    record::set_epoch(Instant::now());
+    record::set_run(Run {
+        run: record::run_id(id[0], id[1] as u32),
         epoch_wtime: Some(mpi::time()),
     });
 }
 
 /// The instant the ranks left the barrier (now, if `agree` was not called).
 pub fn epoch() -> Instant {
-    trace::epoch()
+    record::epoch()
 }

@@ -8,11 +8,11 @@ use super::pixels::{Copiers, FrameBuf, Wire};
 use super::protocol::FrameReport;
 use super::startup::Image;
 use super::{Options, Roles};
-use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};
 use crate::files;
 use crate::gpu::frame::ms;
 use crate::output;
+use crate::traces::record::{self, Event, FrameTrace};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use serde_json::json;
@@ -163,15 +163,19 @@ impl<'a> Display<'a> {
             "span_ms": complete_ms - a.first_ms, "messages": a.messages,
             "bytes": a.bytes, "render": &render,
         }));
-        let mut events = render;
-        for e in &mut events {
-            e["type"] = "render".into();
-        }
-        events.push(json!({
-            "type": "display", "messages": a.messages, "bytes": a.bytes,
-            "pixels": copied, "first_message_ms": a.first_ms,
-            "complete_ms": complete_ms, "copy_wait_ms": copy_wait,
-            "copy_threads": opts.copy_threads,
+        let mut events: Vec<Event> = a
+            .render
+            .iter()
+            .map(|r| Event::Render(r.to_record()))
+            .collect();
+        events.push(Event::Display(record::Display {
+            messages: a.messages,
+            bytes: a.bytes,
+            pixels: copied,
+            first_message_ms: a.first_ms,
+            complete_ms,
+            copy_wait_ms: copy_wait,
+            copy_threads: opts.copy_threads,
         }));
         if let Some(b) = balancer {
             for (_, e) in b.take_finished_events() {
@@ -287,7 +291,7 @@ pub fn write_events(
     frame: u32,
     rank: u32,
     roles: Roles,
-    events: Vec<serde_json::Value>,
+    events: Vec<Event>,
 ) -> Result<()> {
     let mut t = FrameTrace {
         events,

@@ -203,6 +203,18 @@ impl FrameReport {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::to_value(self).expect("a map of numbers")
     }
+
+    /// The report as the display's trace records it.
+    pub fn to_record(&self) -> crate::traces::record::Render {
+        crate::traces::record::Render {
+            frame: self.frame,
+            rank: self.rank,
+            tiles: self.tiles,
+            messages: self.messages,
+            bytes: self.bytes,
+            stats: serde_json::to_value(&self.stats).expect("a map of numbers"),
+        }
+    }
 }
 
 /// A message as received.

@@ -11,7 +11,6 @@ use super::startup::RenderSetup;
 use super::{Options, Roles, rma};
 use crate::blocks::ranks::Ranks;
 use crate::dc::source::BlockSource;
-use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};
 use crate::gpu::Idle;
 use crate::gpu::frame::{FrameStats, Rect, ms};
@@ -19,9 +18,9 @@ use crate::gpu::layout::Pixel;
 use crate::gpu::scheduler::{Next, RectSource};
 use crate::gpu::tracer::{DcSetup, Tracer};
 use crate::render::frames::{FrameBody, FrameCtx, FramePlan, Role, View, run_frames};
+use crate::traces::record::{Event, FrameTrace, Tile};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
-use serde_json::json;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
@@ -300,10 +299,14 @@ impl RankTiles<'_, '_> {
             send(r.world, Roles::DISPLAY, Tag::Pixels, &m);
         }
         self.last_end = r.start.elapsed();
-        self.sent.events.push(json!({
-            "type": "tile", "x": rect.x, "y": rect.y, "w": rect.w, "h": rect.h,
-            "start_ms": ms(t0), "trace_ms": ms(t1 - t0),
-            "send_ms": ms(self.last_end - t1),
+        self.sent.events.push(Event::Tile(Tile {
+            x: rect.x,
+            y: rect.y,
+            w: rect.w,
+            h: rect.h,
+            start_ms: ms(t0),
+            trace_ms: ms(t1 - t0),
+            send_ms: ms(self.last_end - t1),
         }));
     }
 }
@@ -359,7 +362,7 @@ impl RectSource for RankTiles<'_, '_> {
 /// The tiles, messages and bytes a frame sent to the display.
 #[derive(Default)]
 struct Sent {
-    events: Vec<serde_json::Value>,
+    events: Vec<Event>,
     messages: u32,
     bytes: u64,
 }

@@ -4,7 +4,6 @@
 
 pub mod policy;
 pub mod source;
-pub mod trace;
 
 use crate::blocks::ranks::Ranks;
 use crate::error::{Error, Result};

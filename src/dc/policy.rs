@@ -8,9 +8,9 @@
 //! finishes.
 
 use super::NONE;
-use super::trace::Fault;
 use super::{CacheMap, cache_line};
 use crate::blocks::ranks::Ranks;
+use crate::traces::record::Fault;
 
 /// A rank's cache: what each line holds and the row of every block on its GPU.
 #[derive(Clone, Debug)]

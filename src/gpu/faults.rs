@@ -14,8 +14,8 @@ use super::tracer::{DcSetup, FaultMode, Settings, Tracer};
 use crate::dc::CacheMap;
 use crate::dc::policy::CachePolicy;
 use crate::dc::source::BlockSource;
-use crate::dc::trace::{FrameTrace, Round};
 use crate::error::{Error, Result};
+use crate::traces::record::{FrameTrace, Round};
 use std::mem::size_of;
 use std::time::Instant;
 
@@ -216,7 +216,7 @@ impl Tracer<'_> {
             dropped: header.dropped,
             source: dc.source.name().into(),
             faults: plan.faults,
-            start_ms: Some(crate::dc::trace::ms_since_epoch(submitted)),
+            start_ms: Some(crate::traces::record::ms_since_epoch(submitted)),
             wait_ms: Some(waited.as_secs_f64() * 1e3),
             gpu_ms,
             used_lines: used.iter().filter(|&&u| u != 0).count() as u32,

@@ -28,11 +28,11 @@ use crate::blocks::ranks::Ranks;
 use crate::blocks::{AttrLayout, Format};
 use crate::dc::CacheMap;
 use crate::dc::source::BlockSource;
-use crate::dc::trace::FrameTrace;
 use crate::error::{Error, Result};
 use crate::mirror::tiles::{TILE, Tiling};
 use crate::scene::CameraBasis;
 use crate::shading::Shading;
+use crate::traces::record::FrameTrace;
 use std::mem::size_of;
 use std::time::Instant;
 

@@ -5,11 +5,11 @@
 //! trace file.
 
 use crate::dc::CacheMap;
-use crate::dc::trace::{FrameSummary, FrameTrace};
 use crate::error::Result;
 use crate::gpu::frame::{Frame, FrameStats, Rect};
 use crate::gpu::tracer::Tracer;
 use crate::scene::Camera;
+use crate::traces::record::{FrameSummary, FrameTrace};
 use std::path::Path;
 
 /// Where the camera of each frame is.
@@ -111,7 +111,7 @@ pub fn run_frames(
 ) -> Result<()> {
     for frame in 0..plan.frames {
         let camera = plan.view.camera(frame, plan.frames);
-        let started = crate::dc::trace::ms_since_epoch(std::time::Instant::now());
+        let started = crate::traces::record::ms_since_epoch(std::time::Instant::now());
         let mut stats = tracer.begin_frame();
         body.trace(FrameCtx {
             frame,

@@ -1,12 +1,13 @@
-//! Reading and analysing the per-frame traces that `--trace DIR` writes (docs/ARCHITECTURE.md,
-//! Traces; the records in Contracts, Trace records): `read` loads and checks a directory,
-//! `summary` tabulates it per frame and rank, `perfetto` turns it into a timeline, `plot` into a
-//! PNG.
+//! The per-frame traces that `--trace DIR` writes (docs/ARCHITECTURE.md, Traces; the records in
+//! Contracts, Trace records): `record` is every record's type and the run clock, used by the
+//! writers (the tracer, the cluster roles) and the readers; `read` loads and checks a
+//! directory, `summary` tabulates it per frame and rank, `perfetto` turns it into a timeline,
+//! `plot` into a picture.
 
 pub mod perfetto;
 pub mod plot;
 pub mod read;
-pub mod simulate;
+pub mod record;
 pub mod summary;
 
 pub use read::{RankFrame, Traces};

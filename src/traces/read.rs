@@ -2,75 +2,11 @@
 //! schema (docs/ARCHITECTURE.md, Trace records). A bad line is an error naming the file and the
 //! line; files of different runs in one directory are an error, never a partial result.
 
-use crate::dc::trace::VERSION;
+use super::record::{Display, FrameRecord, Grant, Render, Round, Tile, VERSION};
 use crate::error::{Error, Result};
-use serde::Deserialize;
 use serde::de::DeserializeOwned;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-
-pub use crate::dc::trace::{Fault, FrameSummary, Round};
-
-/// The `frame` record: the schema version and run (absent before version 1), then the totals
-/// the tracer wrote (`dc::trace::FrameSummary`, whose fields it derefs to).
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct FrameRecord {
-    #[serde(default)]
-    pub version: u32,
-    #[serde(default)]
-    pub run: Option<String>,
-    #[serde(default)]
-    pub epoch_wtime: Option<f64>,
-    #[serde(flatten)]
-    pub summary: FrameSummary,
-}
-
-impl std::ops::Deref for FrameRecord {
-    type Target = FrameSummary;
-    fn deref(&self) -> &FrameSummary {
-        &self.summary
-    }
-}
-
-/// A tile a render rank traced and sent.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Tile {
-    pub x: u32,
-    pub y: u32,
-    pub w: u32,
-    pub h: u32,
-    pub start_ms: f64,
-    pub trace_ms: f64,
-    pub send_ms: f64,
-}
-
-/// An answer of the balancer to a render rank.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Grant {
-    pub rank: u32,
-    pub kind: String,
-    pub t_ms: f64,
-    #[serde(default)]
-    pub x: Option<u32>,
-    #[serde(default)]
-    pub y: Option<u32>,
-    #[serde(default)]
-    pub w: Option<u32>,
-    #[serde(default)]
-    pub h: Option<u32>,
-}
-
-/// How the display assembled a frame.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-pub struct Display {
-    pub messages: u64,
-    pub bytes: u64,
-    pub pixels: u64,
-    pub first_message_ms: f64,
-    pub complete_ms: f64,
-    pub copy_wait_ms: f64,
-    pub copy_threads: u32,
-}
 
 /// One file: one frame at one rank.
 #[derive(Clone, Debug, PartialEq)]
@@ -80,8 +16,8 @@ pub struct RankFrame {
     pub tiles: Vec<Tile>,
     pub grants: Vec<Grant>,
     pub displays: Vec<Display>,
-    /// The display's `render` records (a render rank's `DONE` report) and events of other types.
-    pub other: Vec<Value>,
+    /// The display's `render` records: each render rank's report of the frame.
+    pub renders: Vec<Render>,
     pub frame: FrameRecord,
 }
 
@@ -97,9 +33,6 @@ pub struct Traces {
     pub dir: PathBuf,
     pub files: Vec<RankFrame>,
 }
-
-/// Event types a trace may hold besides `round` and `frame`; anything else is a foreign line.
-const EVENTS: &[&str] = &["tile", "grant", "render", "display", "test"];
 
 impl Traces {
     pub fn read(dir: &Path) -> Result<Traces> {
@@ -173,7 +106,7 @@ impl Traces {
 }
 
 fn line_count(f: &RankFrame) -> usize {
-    f.rounds.len() + f.tiles.len() + f.grants.len() + f.displays.len() + f.other.len() + 1
+    f.rounds.len() + f.tiles.len() + f.grants.len() + f.displays.len() + f.renders.len() + 1
 }
 
 fn parse_name(name: &str) -> Option<(u32, u32)> {
@@ -195,8 +128,8 @@ fn read_file(path: &Path) -> Result<RankFrame> {
         tiles: Vec::new(),
         grants: Vec::new(),
         displays: Vec::new(),
-        other: Vec::new(),
-        frame: empty_frame(),
+        renders: Vec::new(),
+        frame: FrameRecord::default(),
     };
     let mut frame = None;
     let mut last = 0;
@@ -232,7 +165,7 @@ fn read_file(path: &Path) -> Result<RankFrame> {
             "tile" => out.tiles.push(record(v, n, &at)?),
             "grant" => out.grants.push(record(v, n, &at)?),
             "display" => out.displays.push(record(v, n, &at)?),
-            t if EVENTS.contains(&t) => out.other.push(v),
+            "render" => out.renders.push(record(v, n, &at)?),
             t => return Err(at(n, format!("unknown record type \"{t}\""))),
         }
     }
@@ -266,15 +199,6 @@ fn record<T: DeserializeOwned>(
 ) -> Result<T> {
     let kind = v["type"].as_str().unwrap_or("").to_owned();
     serde_json::from_value(v).map_err(|e| at(n, format!("bad {kind} record: {e}")))
-}
-
-fn empty_frame() -> FrameRecord {
-    FrameRecord {
-        version: 0,
-        run: None,
-        epoch_wtime: None,
-        summary: FrameSummary::default(),
-    }
 }
 
 /// All files must name the same run (or, before version 1, at least the same world size).

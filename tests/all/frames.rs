@@ -4,7 +4,6 @@
 //! and a `--stats` entry per frame.
 
 use crate::common::*;
-use dcrt::dc::trace::FrameTrace;
 use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::frame::{Frame, FrameStats};
 use dcrt::gpu::tracer::Settings;
@@ -14,6 +13,7 @@ use dcrt::render::frames::{
 };
 use dcrt::scene::Scene;
 use dcrt::scene::generate::Generator;
+use dcrt::traces::record::{Event, FrameTrace, Tile};
 
 const W: u32 = 32;
 const H: u32 = 24;
@@ -43,9 +43,16 @@ impl FrameBody for Keep {
         stats: &FrameStats,
         trace: &mut FrameTrace,
     ) -> dcrt::Result<()> {
-        trace
-            .events
-            .push(serde_json::json!({"type": "test", "frame": frame}));
+        // Any typed event: a tile whose x is the frame, to find it in the file.
+        trace.events.push(Event::Tile(Tile {
+            x: frame,
+            y: 0,
+            w: 1,
+            h: 1,
+            start_ms: 0.0,
+            trace_ms: 0.0,
+            send_ms: 0.0,
+        }));
         self.frames.extend(self.current.take());
         self.stats.push(stats.clone());
         self.traces.push(trace.clone());
@@ -141,7 +148,7 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
         );
         // The frame loop adds when the frame began.
         assert!(s.start_ms.is_some_and(|t| t >= 0.0), "frame {i}: {s:?}");
-        let want = dcrt::dc::trace::FrameSummary {
+        let want = dcrt::traces::record::FrameSummary {
             start_ms: s.start_ms,
             ..want
         };
@@ -158,8 +165,8 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
         let r = s.fault_rounds as usize;
         assert_eq!(recs.len(), r + 2, "{}", path.display());
         assert!(recs[..r].iter().all(|x| x["type"] == "round"));
-        assert_eq!(recs[r]["type"], "test");
-        assert_eq!(recs[r]["frame"], i);
+        assert_eq!(recs[r]["type"], "tile");
+        assert_eq!(recs[r]["x"], i);
         assert_eq!(recs[r + 1]["type"], "frame");
         assert_eq!(recs[r + 1]["frame"], i);
         assert_eq!(recs[r + 1]["role"], "render");

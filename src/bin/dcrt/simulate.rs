@@ -2,8 +2,8 @@
 
 use anyhow::{Result, bail};
 use clap::Args;
+use dcrt::simulate::{ClusterModel, simulate as run};
 use dcrt::traces::Traces;
-use dcrt::traces::simulate::{ClusterModel, simulate as run};
 use std::path::PathBuf;
 
 #[derive(Args)]

@@ -1,6 +1,6 @@
 //! `dcrt bench --figures DIR`: the chapter's Figures 6-8 redone (docs/ARCHITECTURE.md, Traces).
 //! Traced mpirun jobs at the given rank counts, replicated and with each cache, for the rm and
-//! the occluded assembly model; `traces::simulate` replays each configuration's traces of the
+//! the occluded assembly model; `simulate` replays each configuration's traces of the
 //! largest rank count at 2..60 nodes of one render rank each on the chapter's network (its
 //! bandwidth, and the median fetch time of a fault round here as each round's latency); memory
 //! per node from the ownership and cache sizes the ranks allocate; the display benchmark per
@@ -18,9 +18,9 @@ use dcrt::dc::CacheSize;
 use dcrt::progress::{Progress, say};
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
+use dcrt::simulate::{ClusterModel, Sharing, simulate};
 use dcrt::traces::Traces;
 use dcrt::traces::plot::PALETTE;
-use dcrt::traces::simulate::{ClusterModel, Sharing, simulate};
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::Path;

@@ -1,5 +1,7 @@
-//! Per-frame fault/fetch traces (docs/ARCHITECTURE.md, Traces): what the cache did in every
-//! round, and the frame's totals, written as JSON Lines, one file per frame and rank.
+//! Every trace record (docs/ARCHITECTURE.md, Traces; Contracts, Trace records), typed once for
+//! the writers (the tracer's rounds, the cluster roles' events, the frame loop's totals) and the
+//! readers (`traces::read`), and the run clock their times count from. A trace is JSON Lines,
+//! one file per frame and rank: the rounds, the events, then the frame record.
 
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -152,29 +154,126 @@ pub struct FrameSummary {
     pub start_ms: Option<f64>,
 }
 
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct FrameTrace {
-    pub rounds: Vec<Round>,
-    /// Cluster events of the frame (tiles rendered, grants, messages), each an object with a
-    /// `"type"`.
-    pub events: Vec<serde_json::Value>,
+/// A tile a render rank traced and sent; times in ms on the run clock.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Tile {
+    pub x: u32,
+    pub y: u32,
+    pub w: u32,
+    pub h: u32,
+    pub start_ms: f64,
+    pub trace_ms: f64,
+    pub send_ms: f64,
+}
+
+/// What kind of answer the balancer gave.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum GrantKind {
+    /// A rank's first tiles of the frame, from the static share.
+    Static,
+    /// A tile handed out on request.
+    Dynamic,
+    /// No tile left: the rank's frame is over.
+    End,
+}
+
+impl std::fmt::Display for GrantKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            GrantKind::Static => "static",
+            GrantKind::Dynamic => "dynamic",
+            GrantKind::End => "end",
+        })
+    }
+}
+
+/// An answer of the balancer to a render rank: a tile (none for `End`), at `t_ms`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Grant {
+    pub rank: u32,
+    pub kind: GrantKind,
+    pub t_ms: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub y: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub w: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub h: Option<u32>,
+}
+
+/// A render rank's report of a frame as the display received it: its tiles, the pixel messages
+/// and bytes they took, and its frame statistics (`gpu::frame::FrameStats` as JSON).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Render {
+    pub frame: u32,
+    pub rank: u32,
+    pub tiles: u64,
+    pub messages: u32,
+    pub bytes: u64,
+    pub stats: serde_json::Value,
+}
+
+/// How the display assembled a frame.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Display {
+    pub messages: u64,
+    pub bytes: u64,
+    pub pixels: u64,
+    pub first_message_ms: f64,
+    pub complete_ms: f64,
+    pub copy_wait_ms: f64,
+    pub copy_threads: u32,
+}
+
+/// A cluster event of a frame, written between the rounds and the frame record.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum Event {
+    Tile(Tile),
+    Grant(Grant),
+    Render(Render),
+    Display(Display),
+}
+
+/// The `frame` record, last in a file: the schema version and run (absent before version 1),
+/// then the frame's totals (`FrameSummary`, whose fields it derefs to).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct FrameRecord {
+    #[serde(default)]
+    pub version: u32,
+    #[serde(default)]
+    pub run: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epoch_wtime: Option<f64>,
+    #[serde(flatten)]
     pub summary: FrameSummary,
 }
 
+impl std::ops::Deref for FrameRecord {
+    type Target = FrameSummary;
+    fn deref(&self) -> &FrameSummary {
+        &self.summary
+    }
+}
+
+/// What one frame at one rank writes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameTrace {
+    pub rounds: Vec<Round>,
+    /// Cluster events of the frame (tiles rendered, grants, reports, assembly).
+    pub events: Vec<Event>,
+    pub summary: FrameSummary,
+}
+
+/// A line of a trace file as written.
 #[derive(Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 enum Record<'a> {
     Round(&'a Round),
-    Frame(FrameRecord<'a>),
-}
-
-#[derive(Serialize)]
-struct FrameRecord<'a> {
-    version: u32,
-    #[serde(flatten)]
-    run: &'a Run,
-    #[serde(flatten)]
-    summary: &'a FrameSummary,
+    Frame(&'a FrameRecord),
 }
 
 impl FrameTrace {
@@ -197,12 +296,14 @@ impl FrameTrace {
                 serde_json::to_writer(&mut *w, e).map_err(|e| Error::Invalid(e.to_string()))?;
                 w.write_all(b"\n").map_err(io)?;
             }
+            let run = run();
             let frame = FrameRecord {
                 version: VERSION,
-                run: run(),
-                summary: &self.summary,
+                run: Some(run.run.clone()),
+                epoch_wtime: run.epoch_wtime,
+                summary: self.summary.clone(),
             };
-            serde_json::to_writer(&mut *w, &Record::Frame(frame))
+            serde_json::to_writer(&mut *w, &Record::Frame(&frame))
                 .map_err(|e| Error::Invalid(e.to_string()))?;
             w.write_all(b"\n").map_err(io)
         })?;

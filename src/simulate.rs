@@ -51,11 +51,12 @@
 //! by 2x, and a prediction from one 4-rank run missed the 6-rank run next to it by up to 60%;
 //! the medians of 5 runs came within 25%).
 
-use super::read::{RankFrame, Tile, Traces};
 use crate::cluster::Roles;
 use crate::cluster::schedule::Schedule;
 use crate::error::{Error, Result};
 use crate::gpu::frame::Rect;
+use crate::traces::read::{RankFrame, Traces};
+use crate::traces::record::Tile;
 use serde::Serialize;
 
 #[derive(Clone, Debug)]
@@ -473,8 +474,9 @@ fn measured_completes(t: &Traces, frames: &[u32]) -> Option<Vec<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dc::trace::{FrameSummary, Round};
-    use crate::traces::read::{FrameRecord, RankFrame, Tile};
+    use crate::traces::read::RankFrame;
+    use crate::traces::record::{FrameRecord, Tile};
+    use crate::traces::record::{FrameSummary, Round};
     use std::path::PathBuf;
 
     const FRAMES: u32 = 4;
@@ -492,7 +494,7 @@ mod tests {
             tiles,
             grants: Vec::new(),
             displays: Vec::new(),
-            other: Vec::new(),
+            renders: Vec::new(),
             frame: FrameRecord {
                 version: 1,
                 run: Some("synthetic".into()),
