@@ -747,3 +747,35 @@ fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
         )
     })
 }
+
+#[cfg(test)]
+mod defaults {
+    use super::*;
+    use clap::Parser;
+
+    fn parsed(args: &[&str]) -> FiguresArgs {
+        let all = [&["dcrt", "bench", "figures", "DIR"][..], args].concat();
+        match crate::Cli::try_parse_from(all).unwrap().command {
+            crate::Command::Bench(crate::bench::Bench::Figures(a)) => a,
+            _ => unreachable!("bench figures parses as itself"),
+        }
+    }
+
+    /// The figures' small jobs are the options' own defaults, and a value given is taken as it
+    /// is (the old bench rewrote 1024 and 1000000 into them).
+    #[test]
+    fn small_jobs_are_defaults_and_given_sizes_are_kept() {
+        let a = parsed(&[]);
+        assert_eq!((a.width, a.height, a.triangles), (128, 96, 50_000));
+        assert_eq!(a.ranks, [3, 4, 5]);
+        let a = parsed(&[
+            "--width",
+            "1024",
+            "--height",
+            "1024",
+            "--triangles",
+            "1000000",
+        ]);
+        assert_eq!((a.width, a.height, a.triangles), (1024, 1024, 1_000_000));
+    }
+}

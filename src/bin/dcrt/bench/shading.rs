@@ -844,3 +844,27 @@ fn line(img: &mut image::RgbImage, a: (u32, u32), b: (u32, u32), c: image::Rgb<u
         }
     }
 }
+
+#[cfg(test)]
+mod defaults {
+    use super::*;
+    use clap::Parser;
+
+    fn parsed(args: &[&str]) -> ShadingArgs {
+        let all = [&["dcrt", "bench", "shading"][..], args].concat();
+        match crate::Cli::try_parse_from(all).unwrap().command {
+            crate::Command::Bench(crate::bench::Bench::Shading(a)) => a,
+            _ => unreachable!("bench shading parses as itself"),
+        }
+    }
+
+    /// The small sizes are the options' own defaults, and a value given is taken as it is (the
+    /// old bench rewrote 1024 and 1000000 into them).
+    #[test]
+    fn small_sizes_are_defaults_and_given_sizes_are_kept() {
+        let a = parsed(&[]);
+        assert_eq!((a.width, a.height, a.triangles), (32, 32, 50_000));
+        let a = parsed(&["--width", "1024", "--triangles", "1000000"]);
+        assert_eq!((a.width, a.height, a.triangles), (1024, 32, 1_000_000));
+    }
+}
