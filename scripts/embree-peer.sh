@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# The Embree peer of `dcrt bench --peer embree`: traces the camera rays dcrt wrote to DIR with
+# The Embree peer of `dcrt bench rays --peer embree`: traces the camera rays dcrt wrote to DIR with
 # native Embree 3 (Debian's libembree-dev, installed here on first use) and prints one JSON line.
 # The harness is compiled on first use, and again when its source changes, into a git-ignored
 # folder next to this script. Not part of dcrt's build.
 set -euo pipefail
 if [ $# -ne 1 ]; then
-    echo "usage: $0 DIR (mesh.bin and camera.txt written by dcrt bench --peer embree)" >&2
+    echo "usage: $0 DIR (mesh.bin and camera.txt written by dcrt bench rays --peer embree)" >&2
     exit 2
 fi
 here="$(cd "$(dirname "$0")" && pwd)"

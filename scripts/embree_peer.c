@@ -1,4 +1,4 @@
-// The Embree peer of `dcrt bench --peer embree`: traces the same camera rays through the same
+// The Embree peer of `dcrt bench rays --peer embree`: traces the same camera rays through the same
 // triangles with Embree 3 on every core, so that dcrt's rate can be set against it in one run.
 //
 // Input directory (written by dcrt):

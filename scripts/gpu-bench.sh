@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Primary-ray throughput on a real GPU: prints the adapter, Mrays/s, steps per ray, nodes per
-# block and the share of busy lanes of `dcrt bench` on the rm and assembly generators at
+# block and the share of busy lanes of `dcrt bench rays` on the rm and assembly generators at
 # 1024x1024, both block stores.
 #
-#   scripts/gpu-bench.sh [DCRT_BINARY] [extra dcrt bench options...]
+#   scripts/gpu-bench.sh [DCRT_BINARY] [extra dcrt bench rays options...]
 #
 # Needs only the dcrt binary and a Vulkan loader with a driver. Without a binary argument it
 # uses target/release/dcrt, building it first (without MPI, which a GPU box may lack) when cargo
@@ -26,7 +26,7 @@ size="${SIZE:-1024}"
 adapter=()
 [ -n "${ADAPTER:-}" ] && adapter=(--adapter "$ADAPTER")
 for gen in rm assembly; do
-    json="$("$bin" bench --generator "$gen" --triangles "$tris" --width "$size" --height "$size" \
+    json="$("$bin" bench rays --generator "$gen" --triangles "$tris" --width "$size" --height "$size" \
         --stores --json "${adapter[@]}" "$@")"
     # The JSON is printed pretty; pick the figures without needing jq or python.
     echo "$json" | awk -v gen="$gen" '

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The long-session figures, for one or more dcrt binaries side by side (say a release before and
-# after a change): the soak slope of `bench --soak` (rm 677k at 64x64, rank 1 of 4 virtual ranks
+# after a change): the soak slope of `bench soak` (rm 677k at 64x64, rank 1 of 4 virtual ranks
 # with a 1/32 cache), the RSS of a 700-frame render replicated and cached, the time from a
 # SIGSTOP of render rank 3 to the end of a 4-rank mpirun job (shared memory, TCP, UCX), and what
 # SIGTERM leaves of a one-process render and of an mpirun job.
@@ -96,7 +96,7 @@ for bin in "$@"; do
   bin=$(realpath "$bin")
   i=$((i + 1))
   echo "== $i: $bin"
-  "$bin" bench "$work/big.toml" --soak "$frames" --width 64 --height 64 --caches 1/32 \
+  "$bin" bench soak "$work/big.toml" --frames "$frames" --width 64 --height 64 --cache 1/32 \
     --virtual-ranks 4 --rank 1 -q --json > "$work/soak$i.json"
   python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print('soak: %d frames, RSS %.1f -> %.1f MiB, slope %.0f bytes a frame, GPU objects %s' % (r['frames'], r['rss_start_mib'], r['rss_end_mib'], r['bytes_per_frame'], 'not counted' if 'gpu_objects_end' not in r else 'flat' if r['gpu_objects_warm'] == r['gpu_objects_end'] else 'GREW'))" "$work/soak$i.json"
   rm -rf "$work/r"; mkdir "$work/r"

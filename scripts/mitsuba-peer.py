@@ -1,4 +1,4 @@
-"""Mitsuba 3 peer of `dcrt bench --shading` (run through mitsuba-peer.sh).
+"""Mitsuba 3 peer of `dcrt bench shading` (run through mitsuba-peer.sh).
 
 DIR/scene.json, written by dcrt, gives the image size, the camera as dcrt's ray generation uses it
 (origin, forward, and the right and up vectors that span the image plane at unit distance), the

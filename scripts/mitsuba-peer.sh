@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Renders a scene that `dcrt bench --shading --peer mitsuba` wrote into DIR with Mitsuba 3
+# Renders a scene that `dcrt bench shading --peer mitsuba` wrote into DIR with Mitsuba 3
 # (scripts/mitsuba-peer.py). On first use it makes its own Python venv in .mitsuba-venv (git
 # ignored) with a pinned Mitsuba from PyPI, and installs Debian's libllvm19 for the llvm_ad_rgb
 # variant if it is missing. Usage: scripts/mitsuba-peer.sh DIR

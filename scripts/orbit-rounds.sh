@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Fault rounds and blocks fetched per frame of a distributed-cache orbit: `dcrt render` of a
-# prepared model as one rank of virtual ranks, one line per frame, then the means of the warm
-# frames (from frame 1) and of those sized by the frame before (from frame 2). Fault rounds and
-# blocks do not depend on the machine's load, so this compares builds or settings without pairing.
+# Fault rounds and blocks fetched per frame of a distributed-cache orbit: `dcrt bench job` (the
+# render path, with switches such as --faults) of a prepared model as one rank of virtual ranks,
+# one line per frame, then the means of the warm frames (from frame 1) and of those sized by the
+# frame before (from frame 2). Fault rounds and blocks do not depend on the machine's load, so
+# this compares builds or settings without pairing.
 #
-#   scripts/orbit-rounds.sh DCRT MODEL.dcb [dcrt render options...]
+#   scripts/orbit-rounds.sh DCRT MODEL.dcb [dcrt bench job options...]
 #   e.g. scripts/orbit-rounds.sh target/release/dcrt rm3.dcb --cache 1/32 --replicate-blocks nodes
 #
 # Defaults (each overridden by the same option given after the model): --virtual-ranks 8
@@ -28,7 +29,7 @@ for d in "--virtual-ranks 8" "--rank 0" "--cache-map lru" "--frames 8"; do
     read -r opt value <<<"$d"
     given "$opt" || args+=("$opt" "$value")
 done
-"$bin" render "$model" "${args[@]}" \
+"$bin" bench job "$model" "${args[@]}" \
     -o "$tmp/frame.png" --stats "$tmp/stats.json" >"$tmp/log" 2>&1 || { cat "$tmp/log" >&2; exit 1; }
 python3 - "$tmp/stats.json" <<'PY'
 import json, sys

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Two dcrt builds measured side by side: on a loaded or noisy machine single runs swing by more
-# than most changes, so both run `dcrt bench` at the same time, each on a core of its own with
+# than most changes, so both run `dcrt bench rays` at the same time, each on a core of its own with
 # one llvmpipe thread, the cores swapped every pair. Prints per pair and row the median and
 # minimum trace ms of each and their ratios (B / A: below 1 means B is faster).
 #
-#   scripts/paired-bench.sh DCRT_A DCRT_B PAIRS [dcrt bench options...]
+#   scripts/paired-bench.sh DCRT_A DCRT_B PAIRS [dcrt bench rays options...]
 #   e.g. scripts/paired-bench.sh /tmp/dcrt-before target/release/dcrt 4 --generator rm --runs 5
 #
 # Needs two free cores (CORES="0 1" by default), taskset and python3.
@@ -20,9 +20,9 @@ tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 for i in $(seq 1 "$pairs"); do
     if [ $((i % 2)) = 1 ]; then ca=$c0 cb=$c1; else ca=$c1 cb=$c0; fi
-    LP_NUM_THREADS=1 taskset -c "$ca" "$a" bench --json -q "$@" >"$tmp/a.json" 2>"$tmp/a.err" &
+    LP_NUM_THREADS=1 taskset -c "$ca" "$a" bench rays --json -q "$@" >"$tmp/a.json" 2>"$tmp/a.err" &
     pa=$!
-    LP_NUM_THREADS=1 taskset -c "$cb" "$b" bench --json -q "$@" >"$tmp/b.json" 2>"$tmp/b.err" &
+    LP_NUM_THREADS=1 taskset -c "$cb" "$b" bench rays --json -q "$@" >"$tmp/b.json" 2>"$tmp/b.err" &
     pb=$!
     wait "$pa" || { cat "$tmp/a.err" >&2; exit 1; }
     wait "$pb" || { cat "$tmp/b.err" >&2; exit 1; }

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, DejaVu fonts (the text of `--legend` and `bench --figures`), and
+# crate), Open MPI, DejaVu fonts (the text of `--legend` and `bench figures`), and
 # cargo-nextest. Installs only what is missing; safe to run again.
 set -euo pipefail
 

@@ -184,8 +184,8 @@ impl Node {
     }
 }
 
-/// The obvhs build presets we expose; `Fast` is the default, chosen by `dcrt bench --bvh-presets`
-/// (docs/benchmarks.md has build times beside trace speed).
+/// The obvhs build presets we expose; `Fast` is the default, chosen by `dcrt bench rays
+/// --bvh-presets` (docs/benchmarks.md has build times beside trace speed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Preset {
     Fastest,

@@ -9,7 +9,6 @@
 //! `mailbox` sends and waits for them, `liveness` tells a working rank from a stopped one, `schedule` decides the tiles, `pixels` packs and
 //! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
 
-pub mod bench;
 pub mod pixels;
 pub mod protocol;
 pub mod schedule;

@@ -775,7 +775,7 @@ pub(crate) mod tests {
         assert!(parse_gltf(&no_pressure, Path::new("t.gltf"), &keep).is_ok());
     }
 
-    /// Found by `dcrt bench --fuzz-loaders`: a huge accessor count allocated its values before
+    /// Found by `dcrt bench fuzz`: a huge accessor count allocated its values before
     /// its bytes were checked (an abort for want of 96 GiB), and an ignored key with invalid
     /// UTF-8 hid a POSITION index from the check before gltf-json's validation (a panic).
     #[test]

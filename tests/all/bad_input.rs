@@ -198,7 +198,6 @@ fn bad_command_line_values() {
     fails(&d, &s, &["--copy-threads", "0"], &["--copy-threads"]);
     fails(&d, &s, &["--tile", "0"], &["--tile"]);
     fails(&d, &s, &["--timeout", "0"], &["--timeout"]);
-    fails(&d, &s, &["--display-bench"], &["mpirun"]);
 }
 
 #[test]

@@ -292,12 +292,14 @@ fn paraview_camera_files() {
     assert!(!out.exists());
 }
 
-/// `bench --json` keeps the keys scripts read (docs/ARCHITECTURE.md, CLI contract) and adds the
-/// traversal's counts, the lane share among them: steps over the iterations lanes ran, a share.
+/// `bench rays --json` keeps the keys scripts read (docs/ARCHITECTURE.md, CLI contract) and adds
+/// the traversal's counts, the lane share among them: steps over the iterations lanes ran, a
+/// share.
 #[test]
 fn bench_json_reports_rates_counts_and_lane_share() {
     let out = dcrt(&[
         &"bench",
+        &"rays",
         &"--generator",
         &"assembly",
         &"--triangles",
@@ -334,11 +336,11 @@ fn bench_json_reports_rates_counts_and_lane_share() {
     assert_eq!(row_num(&r["rows"][0], "lane_use"), lanes);
 }
 
-/// `bench --dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
+/// `bench dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
 fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
     let mut args = vec![
         "bench",
-        "--dc",
+        "dc",
         "--generator",
         "rm",
         "--triangles",
@@ -365,7 +367,7 @@ fn row_num(r: &serde_json::Value, k: &str) -> f64 {
     r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
 }
 
-/// `bench --dc` renders each configuration's frames beside replicated frames of its own: its
+/// `bench dc` renders each configuration's frames beside replicated frames of its own: its
 /// ratio is its warm frame over those (`replicated_frame_ms`), not over an orbit rendered before.
 #[test]
 fn dc_bench_pairs_each_configuration_with_replicated_frames() {
@@ -382,7 +384,7 @@ fn dc_bench_pairs_each_configuration_with_replicated_frames() {
     }
 }
 
-/// `bench --dc --json` on a small model: every row keeps its keys, the replicated row is the
+/// `bench dc --json` on a small model: every row keeps its keys, the replicated row is the
 /// reference of the ratios, each repeat runs every configuration, and the block counts come from
 /// the extra counting frame (the timed frames leave them out).
 #[test]
@@ -441,5 +443,60 @@ fn dc_bench_reports_ratios_over_its_repeats() {
             f(r, "fault_rounds_per_frame") > 0.0,
             "a 1/8 cache faults: {r}"
         );
+    }
+}
+
+/// The switches for measurements are options of the benches, not of `dcrt render`: the render
+/// CLI refuses each, naming it (a usage error, exit 2), and `dcrt bench job`, the render path
+/// the cluster bench and the figures run, takes each and renders. `--block-counts` reaches the
+/// tracer (its counts are in `--stats`, 0 without); `--display-bench` needs mpirun.
+#[test]
+fn measurement_switches_are_bench_options_not_render_options() {
+    let d = TempDir::new("cli-switches");
+    let scene = d.write("s.toml", SCENE);
+    let png = d.path("s.png");
+    let stats = d.path("s.json");
+    let switches: [&[&str]; 7] = [
+        &["--faults", "never"],
+        &["--overlap-batches", "never"],
+        &["--block-counts"],
+        &["--epsilon", "0.0001"],
+        &["--closest-hit-shadows"],
+        &["--no-cull"],
+        &["--display-bench"],
+    ];
+    let node_visits = |extra: &[&str]| -> u64 {
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> =
+            vec![&"bench", &"job", &scene, &"-o", &png, &"--stats", &stats];
+        args.extend(extra.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));
+        ok(&args);
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        v["frames"][0]["stats"]["node_visits"].as_u64().unwrap()
+    };
+    for switch in switches {
+        let mut render: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"render", &scene, &"-o", &png];
+        render.extend(switch.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));
+        let r = dcrt(&render);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(2), "{switch:?}: {err}");
+        assert!(
+            err.contains(&format!("unexpected argument '{}'", switch[0])),
+            "{switch:?}: {err}"
+        );
+        if switch[0] == "--display-bench" {
+            let mut job: Vec<&dyn AsRef<std::ffi::OsStr>> =
+                vec![&"bench", &"job", &scene, &"-o", &png];
+            job.extend(switch.iter().map(|a| a as &dyn AsRef<std::ffi::OsStr>));
+            let r = dcrt(&job);
+            let err = String::from_utf8_lossy(&r.stderr);
+            assert_eq!(r.status.code(), Some(1), "{err}");
+            assert!(err.contains("run it under mpirun"), "{err}");
+        } else {
+            let _ = std::fs::remove_file(&png);
+            let visits = node_visits(switch);
+            assert!(png.exists(), "{switch:?}");
+            assert_eq!(visits > 0, switch[0] == "--block-counts", "{switch:?}");
+        }
     }
 }

@@ -147,12 +147,26 @@ impl Fixture {
         exr: bool,
         extra: &[&str],
     ) -> (u64, std::collections::BTreeSet<u64>) {
+        self.check_as(&["render"], k, mca, cache, exr, extra)
+    }
+
+    /// `check_with` run as `command` (`render`, or `bench job` for the measurement switches).
+    fn check_as(
+        &self,
+        command: &[&str],
+        k: u32,
+        mca: &[&str],
+        cache: Option<&str>,
+        exr: bool,
+        extra: &[&str],
+    ) -> (u64, std::collections::BTreeSet<u64>) {
         let name = format!("k{k}");
         let png = self.dir.path(&format!("{name}.png"));
         let exr_path = self.dir.path(&format!("{name}.exr"));
         let traces = self.dir.path(&format!("{name}-traces"));
         let dcb = self.dcb.to_str().unwrap();
-        let mut args = vec!["render", dcb, "-o", png.to_str().unwrap()];
+        let mut args = command.to_vec();
+        args.extend([dcb, "-o", png.to_str().unwrap()]);
         let frames = FRAMES.to_string();
         args.extend(["--frames", &frames]);
         args.extend(extra);
@@ -422,7 +436,7 @@ fn six_ranks_over_ucx_with_many_blocks() {
 /// the second, once the first has sized the batches.) Whether a tile is at hand when a round
 /// could start it depends on when the balancer's answers arrive, so that rounds are shared is
 /// checked in one process (`dc::tiles_from_a_source_share_rounds`); here only that they are
-/// not with `--overlap-batches never`.
+/// not with `--overlap-batches never` (a measurement switch: `bench job`).
 #[test]
 fn overlapping_tiles_under_mpirun_match_one_process() {
     let fx = Fixture::new("cl-overlap");
@@ -433,7 +447,8 @@ fn overlapping_tiles_under_mpirun_match_one_process() {
             let (n, _) = fx.check_with(4, mca, Some(cache), false, &tiles);
             eprintln!("{what}: {n} shared rounds");
             let never = [&tiles[..], &["--overlap-batches", "never"]].concat();
-            let (n, _) = fx.check_with(4, mca, Some(cache), false, &never);
+            let job = ["bench", "job"];
+            let (n, _) = fx.check_as(&job, 4, mca, Some(cache), false, &never);
             assert_eq!(n, 0, "{what}");
         }
     }

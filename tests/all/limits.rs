@@ -29,17 +29,29 @@ fn identical_triangles_build_shallow_and_render() {
     );
 }
 
-/// The bench applies the generators' limit: an absurd `--triangles` is an error naming the
-/// option, not an allocation abort.
+/// Each bench with a generated model applies the generators' limit: an absurd `--triangles` is an
+/// error naming the option, not an allocation abort.
 #[test]
 fn bench_refuses_triangles_past_the_generators_limit() {
-    let out = dcrt(&[&"bench", &"--triangles", &"18446744073709551615"]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{err}");
-    assert!(
-        err.contains("--triangles must be between 1 and 1000000000, got 18446744073709551615"),
-        "{err}"
-    );
+    for bench in ["rays", "dc", "soak", "shading", "cluster", "figures"] {
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench", &bench];
+        if bench == "figures" {
+            args.push(&"figs-never-written");
+        }
+        if bench == "soak" {
+            args.push(&"--frames");
+            args.push(&"20");
+        }
+        args.push(&"--triangles");
+        args.push(&"18446744073709551615");
+        let out = dcrt(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{bench}: {err}");
+        assert!(
+            err.contains("--triangles must be between 1 and 1000000000, got 18446744073709551615"),
+            "{bench}: {err}"
+        );
+    }
 }
 
 /// A generator at its documented maximum is refused before it runs, with the size it needs and
@@ -67,58 +79,84 @@ fn a_generator_too_large_for_memory_is_refused_with_its_size() {
 }
 
 /// The bench's option combinations that cannot be measured are refused, naming the option,
-/// before any work: a reference that cannot be split into whole halves, a peer with the wrong
-/// benchmark, a soak too short for a slope, figures without a render rank, a timed frame or a
-/// valid cache, a cluster cache with no such mapping.
+/// before any work: a reference that cannot be split into whole halves, a peer of another bench,
+/// a soak too short for a slope, figures without a render rank, a timed frame or a valid cache, a
+/// cluster cache with no such mapping, a block file where a model is built from a scene.
 #[test]
 fn bench_refuses_options_it_cannot_measure() {
     for (args, expect) in [
         (
-            &["--shading", "--reference-spp", "0"][..],
+            &["shading", "--reference-spp", "0"][..],
             "--reference-spp must be a multiple of 8",
         ),
-        (&["--shading", "--reference-spp", "12"], "got 12"),
-        (&["--peer", "mitsuba"], "--peer mitsuba needs --shading"),
+        (&["shading", "--reference-spp", "12"], "got 12"),
         (
-            &["--peer", "embree", "--shading"],
-            "--peer embree measures primary rays",
+            &["rays", "--peer", "mitsuba"],
+            "invalid value 'mitsuba' for '--peer",
         ),
-        (&["--soak", "5"], "--soak needs at least 20 frames, got 5"),
         (
-            &["--figures", "figs-never-written", "--ranks", "2"],
+            &["shading", "--peer", "embree"],
+            "invalid value 'embree' for '--peer",
+        ),
+        (&["rays", "--runs", "0"], "--runs must be at least 1"),
+        (
+            &["soak", "--frames", "5"],
+            "--frames must be at least 20 for bench soak, got 5",
+        ),
+        (&["soak"], "--frames <FRAMES>"),
+        (
+            &["dc", "model.dcb"],
+            "bench dc builds its model from a scene",
+        ),
+        (
+            &["dc", "--frames", "1"],
+            "--frames must be at least 2 for bench dc",
+        ),
+        (
+            &["fuzz", "--seconds", "0"],
+            "--seconds needs a positive number",
+        ),
+        (
+            &["figures", "figs-never-written", "--ranks", "2"],
             "--ranks counts MPI ranks, at least 3",
         ),
         (
-            &["--figures", "figs-never-written", "--frames", "1"],
+            &["figures", "figs-never-written", "--frames", "1"],
             "--frames must be at least 2",
         ),
         (
-            &[
-                "--figures",
-                "figs-never-written",
-                "--ranks",
-                "3",
-                "--caches",
-                "1/0",
-            ],
+            &["figures", "figs-never-written", "--caches", "1/0"],
             "--caches: 1/0",
         ),
         (
-            &["--cluster", "--cluster-caches", "none,1/8:fifo"],
-            "--cluster-caches 1/8:fifo: no cache mapping \"fifo\"",
+            &["cluster", "--caches", "none,1/8:fifo"],
+            "--caches 1/8:fifo: no cache mapping \"fifo\"",
         ),
         (
-            &["--cluster", "--cluster-caches", "1/8:lru:sometimes"],
-            "--cluster-caches 1/8:lru:sometimes: no overlap mode \"sometimes\"",
+            &["cluster", "--caches", "1/8:lru:sometimes"],
+            "--caches 1/8:lru:sometimes: no overlap mode \"sometimes\"",
         ),
         (
-            &["--cluster", "--copy-threads", "1,x"],
+            &["cluster", "--copy-threads", "1,x"],
             "\"x\" is not a count",
         ),
         // An empty list is taken (it skips the display benchmark): the refusal is the frames'.
         (
-            &["--cluster", "--copy-threads", "", "--frames", "1"],
+            &["cluster", "--copy-threads", "", "--frames", "1"],
             "--frames must be at least 2",
+        ),
+        // Each bench has only its own options.
+        (
+            &["rays", "--caches", "1/8"],
+            "unexpected argument '--caches'",
+        ),
+        (
+            &["shading", "--generator", "rm"],
+            "unexpected argument '--generator'",
+        ),
+        (
+            &["cluster", "--faults", "never"],
+            "unexpected argument '--faults'",
         ),
     ] {
         let mut all: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![&"bench"];

@@ -1,7 +1,7 @@
 //! Long sessions: a few hundred frames of an orbit, replicated and through a distributed cache,
 //! keep every GPU object count flat (wgpu's counters: exact, so any object made a frame and not
 //! freed fails) and the resident memory bounded (a leak of host memory, as the half a megabyte a
-//! frame that once went unnoticed, fails). `dcrt bench --soak` measures the same over thousands.
+//! frame that once went unnoticed, fails). `dcrt bench soak` measures the same over thousands.
 
 use crate::common::*;
 use dcrt::dc::{CacheMap, CacheSize};

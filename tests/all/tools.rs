@@ -444,7 +444,7 @@ fn cluster_simulate_predicts_its_own_run() {
     assert!(shared["measured_mean_frame_ms"].is_null());
 }
 
-/// `bench --figures` on a tiny configuration: traced mpirun jobs (3 ranks, replicated and a 1/2
+/// `bench figures` on a tiny configuration: traced mpirun jobs (3 ranks, replicated and a 1/2
 /// cache, both models), their replays to 60 nodes, memory per node and one display job. The
 /// JSON holds one point per configuration and source, every rate finite and positive; the
 /// three PNGs decode at their sizes.
@@ -455,7 +455,7 @@ fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
     let r = Command::new("timeout")
         .args(["-k", "5", "120"])
         .arg(env!("CARGO_BIN_EXE_dcrt"))
-        .args(["bench", "--figures"])
+        .args(["bench", "figures"])
         .arg(&out)
         .args(["--triangles", "2000", "--width", "32", "--height", "32"])
         .args([

@@ -1,6 +1,7 @@
 //! `dcrt render`: the options checked before any work, then a cluster role under an MPI launcher,
 //! or the frames of one process.
 
+use crate::bench::Switches;
 use crate::checks::check_budget;
 use crate::{GpuArgs, ShadeArgs, settings};
 use anyhow::{Context, Result, bail};
@@ -90,10 +91,6 @@ pub struct ClusterArgs {
     /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
     #[arg(long, default_value_t = 300)]
     timeout: u64,
-    /// Display benchmark (chapter 5.5): the camera looks away from the model, tiles are traced
-    /// once and then resent, and the MPI bandwidth to the display is measured after the frames.
-    #[arg(long)]
-    display_bench: bool,
     /// Write the run's figures (frame times, per-rank statistics) as JSON to this file.
     #[arg(long)]
     stats: Option<PathBuf>,
@@ -181,7 +178,9 @@ impl DcArgs {
     }
 }
 
-pub fn render(a: RenderArgs) -> Result<()> {
+/// `dcrt render` runs with the switches off (`Switches::default()`); `dcrt bench job` runs the
+/// same path with those it was given.
+pub fn render(a: RenderArgs, sw: &Switches) -> Result<()> {
     check_budget(a.gpu.step_budget)?;
     if !a.aov.is_empty() && a.exr.is_none() {
         bail!("--aov needs --exr FILE: the AOVs are EXR channels");
@@ -199,7 +198,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
         );
     }
     // Options are checked before the scene is loaded.
-    a.shade.apply(Shading::default())?;
+    sw.shade
+        .apply(a.shade.overrides())
+        .apply(Shading::default())?;
     // Every output path is checked before the scene is loaded, so a run never fails at the end
     // over a path, and no output replaces an input (docs/ARCHITECTURE.md, Outputs).
     let mut outputs = vec![("PNG", a.output.as_path(), a.frames)];
@@ -216,7 +217,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
     }
-    let format = Format::new(a.gpu.block_size)?;
+    let format = Format::new(a.gpu.build.block_size)?;
     // Checked in one process too, so that a typo is not found only on the cluster.
     let c = &a.cluster;
     if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
@@ -226,22 +227,22 @@ pub fn render(a: RenderArgs) -> Result<()> {
         bail!("--timeout must be at least 1 second");
     }
     if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
-        return render_cluster(&a, format, k);
+        return render_cluster(&a, sw, format, k);
     }
-    if a.cluster.display_bench {
+    if sw.display_bench {
         bail!(
             "--display-bench measures the display of a cluster: run it under mpirun with 2 or more ranks"
         );
     }
-    one_process(&a, format)
+    one_process(&a, sw, format)
 }
 
 /// The frames of one process, replicated or as one virtual rank of a distributed cache: PNG (and
 /// EXR) per frame, a line on stderr, traces and `--stats` when asked. Each file is written
 /// atomically; if the run fails, the outputs of the frame it was on are removed and the
 /// finished frames kept, so a failed run leaves nothing half done and loses no finished work.
-fn one_process(a: &RenderArgs, format: Format) -> Result<()> {
-    frames_of(a, format).inspect_err(|_| say_kept(files::remove_written()))
+fn one_process(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
+    frames_of(a, sw, format).inspect_err(|_| say_kept(files::remove_written()))
 }
 
 /// After a failure: what the run keeps, if anything.
@@ -251,10 +252,10 @@ pub fn say_kept(kept: Option<String>) {
     }
 }
 
-fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
+fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
     let dc = a.dc.options()?;
     let camera = a.camera.as_deref().map(pvcc::load_pvcc).transpose()?;
-    let mut loaded = Loaded::open(&a.scene, a.gpu.bvh_preset, format)?;
+    let mut loaded = Loaded::open(&a.scene, a.gpu.build.bvh_preset, format)?;
     if let Some(c) = camera {
         loaded.camera = c;
     }
@@ -270,10 +271,10 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
     memory::check_image_with_exr(width, height, exr_channels, memory::available())?;
     let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
     dcrt::report!("adapter: {}", gpu.describe());
-    let shading = a.shade.apply(loaded.shading)?;
+    let shading = sw.shade.apply(a.shade.overrides()).apply(loaded.shading)?;
     let s = Settings {
         shading,
-        ..settings(&a.gpu)
+        ..sw.tracer.apply(settings(&a.gpu))
     }
     .for_image(width, height);
     let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
@@ -396,7 +397,7 @@ fn frames_of(a: &RenderArgs, format: Format) -> Result<()> {
 }
 
 /// `render` under an MPI launcher with `k` > 1 ranks: this process's role of the cluster.
-fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
+fn render_cluster(a: &RenderArgs, sw: &Switches, format: Format, k: u32) -> Result<()> {
     if a.dc.virtual_ranks.is_some() {
         bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
     }
@@ -428,10 +429,10 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         frames: a.frames,
         trace: a.trace.clone(),
         adapter: a.gpu.adapter.clone(),
-        settings: settings(&a.gpu),
-        shade: a.shade.overrides(),
+        settings: sw.tracer.apply(settings(&a.gpu)),
+        shade: sw.shade.apply(a.shade.overrides()),
         exposure: a.exposure,
-        preset: a.gpu.bvh_preset,
+        preset: a.gpu.build.bvh_preset,
         format,
         cache,
         copy_threads: c.copy_threads,
@@ -439,7 +440,7 @@ fn render_cluster(a: &RenderArgs, format: Format, k: u32) -> Result<()> {
         min_tile: c.min_tile,
         message_bytes: c.message_bytes,
         timeout: std::time::Duration::from_secs(c.timeout),
-        display_bench: c.display_bench,
+        display_bench: sw.display_bench,
         stats: c.stats.clone(),
         legend: a.legend,
         camera: a

@@ -1,25 +1,72 @@
-//! `dcrt bench --cluster`: the driver of the mpirun jobs of `dcrt::cluster::bench`.
+//! `dcrt bench cluster`: the driver of the mpirun jobs of `jobs`.
 
-use super::{MODELS, emit};
-use crate::BenchArgs;
+use super::jobs::{Plan, Transport, table};
+use super::{DisplayArgs, MODELS, check_model, emit, format_of};
+use crate::BuildArgs;
 use anyhow::{Context, Result, bail};
-use dcrt::blocks::Format;
+use clap::Args;
 use dcrt::dc::CacheSize;
 use dcrt::gpu::tracer::OverlapMode;
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
+use std::path::PathBuf;
 
-/// `bench --cluster`: prepares the models once, then runs the jobs of `cluster::bench`.
-pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
-    use dcrt::cluster::bench::{Plan, table};
-    if a.frames < 2 || a.display_frames < 4 {
+#[derive(Args)]
+pub struct ClusterArgs {
+    /// Scene file; without it, the generated rm and occluded assembly models (--triangles).
+    scene: Option<PathBuf>,
+    /// Triangles of each generated model.
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    #[arg(long, default_value_t = 1024)]
+    height: u32,
+    /// Frames of each job (the first is not timed).
+    #[arg(long, default_value_t = 4)]
+    frames: u32,
+    /// MPI rank counts of the jobs.
+    #[arg(long, value_delimiter = ',', default_value = "2,3,4,5,6")]
+    ranks: Vec<u32>,
+    /// `none` replicates; a cache size, with `:MAP` for another mapping than `ize` (`1/8:lru`),
+    /// `:OVERLAP` for another `--overlap-batches` than `auto` (`1/8:lru:never`) and `:REPLICATE`
+    /// for another `--replicate-blocks` than `root` (`1/8:lru:auto:nodes`).
+    #[arg(long, value_delimiter = ',', default_value = "none,1/8")]
+    caches: Vec<String>,
+    /// Open MPI transports the cached jobs at the largest rank count run over.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "shm,tcp-pt2pt,ucx"
+    )]
+    transports: Vec<Transport>,
+    #[command(flatten)]
+    display: DisplayArgs,
+    /// Only the display benchmark.
+    #[arg(long)]
+    display_only: bool,
+    /// One JSON object on stdout instead of the tables.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    build: BuildArgs,
+}
+
+/// `bench cluster`: prepares the models once, then runs the jobs of `jobs`.
+pub fn bench(a: &ClusterArgs) -> Result<()> {
+    check_model(a.width, a.height, a.triangles, None)?;
+    let format = format_of(&a.build)?;
+    let (display_frames, display_ranks) = (a.display.display_frames, a.display.display_ranks);
+    let copy_threads = &a.display.copy_threads.0;
+    if a.frames < 2 || display_frames < 4 {
         bail!("--frames must be at least 2 and --display-frames at least 4: frame 0 is not timed");
     }
-    if a.ranks.iter().any(|&k| k < 2) || a.display_ranks < 2 {
+    if a.ranks.iter().any(|&k| k < 2) || display_ranks < 2 {
         bail!("--ranks and --display-ranks count MPI ranks: at least 2");
     }
     let caches = a
-        .cluster_caches
+        .caches
         .iter()
         .map(|c| match c.as_str() {
             "none" => Ok(None),
@@ -29,21 +76,20 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
                 CacheSize::parse(size)?;
                 if let Some(map) = parts.next() {
                     <dcrt::dc::CacheMap as clap::ValueEnum>::from_str(map, true).map_err(|_| {
-                        anyhow::anyhow!("--cluster-caches {other}: no cache mapping {map:?}")
+                        anyhow::anyhow!("--caches {other}: no cache mapping {map:?}")
                     })?;
                 }
                 if let Some(o) = parts.next() {
-                    <OverlapMode as clap::ValueEnum>::from_str(o, true).map_err(|_| {
-                        anyhow::anyhow!("--cluster-caches {other}: no overlap mode {o:?}")
-                    })?;
+                    <OverlapMode as clap::ValueEnum>::from_str(o, true)
+                        .map_err(|_| anyhow::anyhow!("--caches {other}: no overlap mode {o:?}"))?;
                 }
                 if let Some(r) = parts.next() {
                     <dcrt::dc::Replicate as clap::ValueEnum>::from_str(r, true).map_err(|_| {
-                        anyhow::anyhow!("--cluster-caches {other}: no replicated blocks {r:?}")
+                        anyhow::anyhow!("--caches {other}: no replicated blocks {r:?}")
                     })?;
                 }
                 if parts.next().is_some() {
-                    bail!("--cluster-caches {other}: SIZE[:MAP[:OVERLAP[:REPLICATE]]]");
+                    bail!("--caches {other}: SIZE[:MAP[:OVERLAP[:REPLICATE]]]");
                 }
                 Ok(Some(other.to_string()))
             }
@@ -69,7 +115,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
     };
     let mut models = Vec::new();
     for (name, scene) in &scenes {
-        let p = Prepared::new(scene, a.gpu.bvh_preset, format)?;
+        let p = Prepared::new(scene, a.build.bvh_preset, format)?;
         let camera = scene.camera_or_default(&p.model);
         let path = dir.join(format!("{name}.dcb"));
         dcrt::blocks::file::write(&path, &p.blocks, &p.meta(scene, camera, a.width, a.height))?;
@@ -90,8 +136,8 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         frames: a.frames,
         width: a.width,
         height: a.height,
-        copy_threads: a.copy_threads.0.clone(),
-        display_ranks: a.display_ranks,
+        copy_threads: copy_threads.clone(),
+        display_ranks,
         timeout_seconds: 600,
     };
     let rows = if a.display_only {
@@ -100,13 +146,13 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         plan.frame_times()?
     };
     let display_plan = Plan {
-        frames: a.display_frames,
+        frames: display_frames,
         width: 1920,
         height: 1080,
         ..plan
     };
     let display = match models.first() {
-        Some((_, m)) if !a.copy_threads.0.is_empty() => display_plan.display(m)?,
+        Some((_, m)) if !copy_threads.is_empty() => display_plan.display(m)?,
         _ => Vec::new(),
     };
     drop(work);
@@ -115,7 +161,7 @@ pub fn run(a: &BenchArgs, format: Format) -> Result<()> {
         print!("{}", table(&rows));
         println!(
             "\ndisplay benchmark ({} ranks, 1920x1080, {} frames):",
-            a.display_ranks, a.display_frames
+            display_ranks, display_frames
         );
         println!(
             "{:>12} {:>8} {:>14} {:>14} {:>12} {:>8}",

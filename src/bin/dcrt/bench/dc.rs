@@ -1,9 +1,11 @@
-//! `dcrt bench --dc`: the distributed cache in one process against the replicated model, over an
+//! `dcrt bench dc`: the distributed cache in one process against the replicated model, over an
 //! orbit, for cache sizes and both mappings; and memory per rank against the rank count.
 
-use super::{Table, block_count_frame, emit, frame_stats, median};
-use crate::{BenchArgs, settings};
+use super::switches::TracerSwitches;
+use super::{ReportArgs, SceneArgs, Table, block_count_frame, emit, frame_stats, median, settings};
+use crate::GpuArgs;
 use anyhow::{Result, bail};
+use clap::Args;
 use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::Gpu;
@@ -12,6 +14,58 @@ use dcrt::progress::Progress;
 use dcrt::render::frames::View;
 use dcrt::render::{DcOptions, Prepared, mib};
 use dcrt::scene::{Camera, Model, Scene};
+
+#[derive(Args)]
+pub struct DcArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Frames of the orbit (the first warms the cache and is reported apart).
+    #[arg(long, default_value_t = 4)]
+    frames: u32,
+    /// The in-process ranks the model is split over.
+    #[arg(long, default_value_t = 8)]
+    virtual_ranks: u32,
+    /// The rank this process renders as.
+    #[arg(long, default_value_t = 0)]
+    rank: u32,
+    /// Cache sizes: fractions of the model (1/8), lines (64lines) or bytes (256MiB).
+    #[arg(long, value_delimiter = ',', default_value = "1/32,1/8,1/4,1/2,1/1")]
+    caches: Vec<String>,
+    /// Cache mappings.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "ize,demarle,lru"
+    )]
+    cache_maps: Vec<CacheMap>,
+    /// What every rank replicates (`root,nodes` sweeps both).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "root")]
+    replicate_blocks: Vec<Replicate>,
+    /// Run the replicated configuration and then every cache configuration this many times in
+    /// turn; frame times and ratios to replicated are medians over the repeats, each ratio
+    /// against the replicated frame of its own repeat (the host's speed drifts).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    repeats: u32,
+    #[command(flatten)]
+    report: ReportArgs,
+    #[command(flatten)]
+    gpu: GpuArgs,
+    #[command(flatten)]
+    switches: TracerSwitches,
+}
+
+/// `bench dc`: the checks, the scene's model, the sweep.
+pub fn bench(a: &DcArgs) -> Result<()> {
+    let format = a.scene.check(&a.gpu)?;
+    if a.frames < 2 {
+        bail!("--frames must be at least 2 for bench dc (the first frame warms the cache)");
+    }
+    a.scene.refuse_block_file("dc")?;
+    let (scene, model, camera) = a.scene.load()?;
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    run(a, &gpu, &scene, model, camera, format)
+}
 
 #[derive(serde::Serialize)]
 struct DcRow {
@@ -85,18 +139,15 @@ struct DcReport {
     memory: Vec<MemoryRow>,
 }
 
-pub fn run(
-    a: &BenchArgs,
+fn run(
+    a: &DcArgs,
     gpu: &Gpu,
     scene: &Scene,
     model: Model,
     camera: Camera,
     format: Format,
 ) -> Result<()> {
-    if a.frames < 2 {
-        bail!("--frames must be at least 2 for --dc (the first frame warms the cache)");
-    }
-    let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
+    let prepared = Prepared::from_model(model, a.gpu.build.bvh_preset, format, 0.0)?;
     let blocks = &prepared.blocks;
     let mut configs: Vec<(Option<DcOptions>, Option<String>)> = vec![(None, None)];
     for &replicate in &a.replicate_blocks {
@@ -118,20 +169,23 @@ pub fn run(
     // is rendered right after the replicated model's same frame (`paired`), so that a ratio
     // compares frames seconds apart: over a run, this host's speed drifts by more than most
     // changes (docs/notes). The replicated row holds every replicated orbit rendered.
-    let size = (a.width, a.height);
+    let size = (a.scene.width, a.scene.height);
     let mut runs: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
     let mut paired: Vec<Vec<Vec<FrameStats>>> = vec![Vec::new(); configs.len()];
     let mut counted = vec![FrameStats::default(); configs.len()];
     let mut lanes = vec![0; configs.len()];
     let total = configs.len().max(2) as u64 - 1;
-    let bar = Progress { quiet: a.quiet }.bar(total * u64::from(a.repeats), "cache configurations");
+    let bar = Progress {
+        quiet: a.report.quiet,
+    }
+    .bar(total * u64::from(a.repeats), "cache configurations");
     let view = View::Orbit(camera);
     let render = |tracer: &mut dcrt::gpu::tracer::Tracer<'_>, f: u32| -> Result<FrameStats> {
         let at = View::Fixed(view.camera(f, a.frames));
         Ok(frame_stats(tracer, at, 1, size, scene.background)?.remove(0))
     };
     for repeat in 0..a.repeats {
-        let mut replicated = prepared.tracer_with(gpu, settings(&a.gpu), None)?;
+        let mut replicated = prepared.tracer_with(gpu, settings(&a.gpu, &a.switches), None)?;
         if repeat == 0 {
             counted[0] = block_count_frame(&mut replicated, camera, size, scene.background)?;
         }
@@ -147,7 +201,8 @@ pub fn run(
         }
         for (i, (cfg, _)) in configs.iter().enumerate().skip(1) {
             bar.inc(1);
-            let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), cfg.as_ref())?;
+            let mut tracer =
+                prepared.tracer_with(gpu, settings(&a.gpu, &a.switches), cfg.as_ref())?;
             let (mut with, mut own) = (Vec::new(), Vec::new());
             for f in 0..a.frames {
                 with.push(render(&mut replicated, f)?);
@@ -286,19 +341,19 @@ pub fn run(
         adapter: gpu.describe(),
         scene: scene.path.display().to_string(),
         triangles: prepared.model.triangles.len(),
-        width: a.width,
-        height: a.height,
+        width: a.scene.width,
+        height: a.scene.height,
         ranks: a.virtual_ranks,
         rank: a.rank,
         frames: a.frames,
         repeats: a.repeats,
-        faults: a.gpu.faults,
-        overlap_batches: a.gpu.overlap_batches,
+        faults: a.switches.faults,
+        overlap_batches: a.switches.overlap_batches,
         model_mib: mib(blocks.bytes()),
         rows,
         memory,
     };
-    emit(a.json, &report, print)
+    emit(a.report.json, &report, print)
 }
 
 fn print(report: &DcReport) {

@@ -1,4 +1,4 @@
-//! `dcrt bench --figures DIR`: the chapter's Figures 6-8 redone (docs/ARCHITECTURE.md, Traces).
+//! `dcrt bench figures DIR`: the chapter's Figures 6-8 redone (docs/ARCHITECTURE.md, Traces).
 //! Traced mpirun jobs at the given rank counts, replicated and with each cache, for the rm and
 //! the occluded assembly model; `simulate` replays each configuration's traces of the
 //! largest rank count at 2..60 nodes of one render rank each on the chapter's network (its
@@ -7,13 +7,14 @@
 //! copy-thread count. Writes `figure6.png`, `figure7.png`, `figure8.png` and `figures.json`
 //! (every point drawn, with its source: `run`, `simulated`, `model` or `chapter`).
 
-use super::MODELS;
-use crate::BenchArgs;
+use super::jobs::{JOB, Plan, Transport, mpirun, run as run_job};
+use super::{DisplayArgs, MODELS, check_model, format_of};
+use crate::BuildArgs;
 use anyhow::{Context, Result, anyhow, bail};
+use clap::Args;
 use dcrt::blocks::Format;
 use dcrt::blocks::ranks::Ranks;
 use dcrt::cluster::Roles;
-use dcrt::cluster::bench::{Plan, Transport};
 use dcrt::dc::CacheSize;
 use dcrt::progress::{Progress, say};
 use dcrt::render::{Prepared, mib};
@@ -23,8 +24,7 @@ use dcrt::traces::Traces;
 use dcrt::traces::plot::PALETTE;
 use plotters::prelude::*;
 use serde::Serialize;
-use std::path::Path;
-use std::process::Command;
+use std::path::{Path, PathBuf};
 
 /// The chapter's interconnect: 4x DDR InfiniBand, 1868 MB/s measured by `ib_read_bw`.
 const CHAPTER_BANDWIDTH: f64 = 1868e6;
@@ -115,21 +115,58 @@ struct Figures {
     figure8: Vec<DisplayPoint>,
 }
 
-pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
-    // The bench's defaults are for one big frame; here they would take hours of mpirun jobs.
-    let width = if a.width == 1024 { 128 } else { a.width };
-    let height = if a.height == 1024 { 96 } else { a.height };
-    let triangles = if a.triangles == 1_000_000 {
-        50_000
-    } else {
-        a.triangles
-    };
-    if a.frames < 2 || a.display_frames < 4 {
+/// Small images and models: every point is an mpirun job, each configuration `--runs` times.
+#[derive(Args)]
+pub struct FiguresArgs {
+    /// The directory the figures and the runs' traces go into.
+    out: PathBuf,
+    #[arg(long, default_value_t = 128)]
+    width: u32,
+    #[arg(long, default_value_t = 96)]
+    height: u32,
+    /// Triangles of each generated model (rm and assembly).
+    #[arg(long, default_value_t = 50_000)]
+    triangles: u64,
+    /// Frames of each traced job (the first is not timed).
+    #[arg(long, default_value_t = 4)]
+    frames: u32,
+    /// MPI rank counts of the traced jobs, at least 3 each (a display, a balancer, render ranks).
+    #[arg(long, value_delimiter = ',', default_value = "3,4,5")]
+    ranks: Vec<u32>,
+    /// Cache sizes of the traced jobs, beside the replicated model.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "1/32,1/16,1/8,1/4,1/2,1/1"
+    )]
+    caches: Vec<String>,
+    /// Jobs of each configuration; the median frame rate is drawn.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    #[command(flatten)]
+    display: DisplayArgs,
+    /// No progress bar (it is drawn on stderr when it is a terminal).
+    #[arg(long, short)]
+    quiet: bool,
+    #[command(flatten)]
+    build: BuildArgs,
+}
+
+pub fn bench(a: &FiguresArgs) -> Result<()> {
+    let out = a.out.as_path();
+    let (width, height, triangles) = (a.width, a.height, a.triangles);
+    check_model(width, height, triangles, None)?;
+    let (display_frames, display_ranks) = (a.display.display_frames, a.display.display_ranks);
+    let copy_threads = &a.display.copy_threads.0;
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if a.frames < 2 || display_frames < 4 {
         bail!("--frames must be at least 2 and --display-frames at least 4: frame 0 is not timed");
     }
-    if a.ranks.is_empty() || a.ranks.iter().any(|&k| k < 3) || a.display_ranks < 2 {
+    if a.ranks.is_empty() || a.ranks.iter().any(|&k| k < 3) || display_ranks < 2 {
         bail!(
-            "--figures: --ranks counts MPI ranks, at least 3 each (a display, a balancer, render ranks); --display-ranks at least 2"
+            "bench figures: --ranks counts MPI ranks, at least 3 each (a display, a balancer, render ranks); --display-ranks at least 2"
         );
     }
     let mut caches = vec!["replicated".to_string()];
@@ -137,7 +174,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         CacheSize::parse(c).with_context(|| format!("--caches: {c}"))?;
         caches.push(c.clone());
     }
-    let format = Format::new(a.gpu.block_size)?;
+    let format = format_of(&a.build)?;
     let font = dcrt::legend::font()?.to_string();
     let runs = out.join("runs");
     std::fs::create_dir_all(&runs).with_context(|| format!("{}: cannot create", runs.display()))?;
@@ -162,7 +199,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
     for g in MODELS {
         let name = g.name().to_string();
         let scene = Scene::generated(g, triangles, width, height);
-        let p = Prepared::new(&scene, a.gpu.bvh_preset, format)?;
+        let p = Prepared::new(&scene, a.build.bvh_preset, format)?;
         let camera = scene.camera_or_default(&p.model);
         let dcb = runs.join(format!("{name}.dcb"));
         dcrt::blocks::file::write(&dcb, &p.blocks, &p.meta(&scene, camera, width, height))?;
@@ -311,7 +348,7 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
         });
     }
     if let Some(dcb) = display_model
-        && !a.copy_threads.0.is_empty()
+        && !copy_threads.is_empty()
     {
         let plan = Plan {
             exe: exe.clone(),
@@ -320,11 +357,11 @@ pub fn run(a: &BenchArgs, out: &Path) -> Result<()> {
             ranks: Vec::new(),
             caches: Vec::new(),
             transports: vec![Transport::Shm],
-            frames: a.display_frames,
+            frames: display_frames,
             width: 1920,
             height: 1080,
-            copy_threads: a.copy_threads.0.clone(),
-            display_ranks: a.display_ranks,
+            copy_threads: copy_threads.clone(),
+            display_ranks,
             timeout_seconds: 600,
         };
         for d in plan.display(&dcb)? {
@@ -413,14 +450,10 @@ fn job(
     cache: &str,
     traces: &Path,
     png: &Path,
-    a: &BenchArgs,
+    a: &FiguresArgs,
 ) -> Result<()> {
-    let mut cmd = Command::new("mpirun");
-    cmd.arg("--oversubscribe")
-        .args(Transport::Shm.mca())
-        .args(["-n", &k.to_string()])
-        .arg(exe)
-        .arg("render")
+    let mut cmd = mpirun(exe, k, Transport::Shm);
+    cmd.args(JOB)
         .arg(dcb)
         .arg("-o")
         .arg(png)
@@ -437,20 +470,10 @@ fn job(
     if cache != "replicated" {
         cmd.args(["--cache", cache]);
     }
-    let what = format!("mpirun -n {k} ({}, {cache})", dcb.display());
-    let out = cmd
-        .output()
-        .with_context(|| format!("{what}: cannot start (apt install openmpi-bin)"))?;
-    if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        let tail: Vec<&str> = err.lines().rev().take(12).collect();
-        bail!(
-            "{what} failed ({}):\n{}",
-            out.status,
-            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
-        );
-    }
-    Ok(())
+    run_job(
+        &mut cmd,
+        &format!("mpirun -n {k} ({}, {cache})", dcb.display()),
+    )
 }
 
 /// The caches of the runs in order, then those only the chapter's points have.
@@ -723,4 +746,36 @@ fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
             font,
         )
     })
+}
+
+#[cfg(test)]
+mod defaults {
+    use super::*;
+    use clap::Parser;
+
+    fn parsed(args: &[&str]) -> FiguresArgs {
+        let all = [&["dcrt", "bench", "figures", "DIR"][..], args].concat();
+        match crate::Cli::try_parse_from(all).unwrap().command {
+            crate::Command::Bench(crate::bench::Bench::Figures(a)) => a,
+            _ => unreachable!("bench figures parses as itself"),
+        }
+    }
+
+    /// The figures' small jobs are the options' own defaults, and a value given is taken as it
+    /// is (the old bench rewrote 1024 and 1000000 into them).
+    #[test]
+    fn small_jobs_are_defaults_and_given_sizes_are_kept() {
+        let a = parsed(&[]);
+        assert_eq!((a.width, a.height, a.triangles), (128, 96, 50_000));
+        assert_eq!(a.ranks, [3, 4, 5]);
+        let a = parsed(&[
+            "--width",
+            "1024",
+            "--height",
+            "1024",
+            "--triangles",
+            "1000000",
+        ]);
+        assert_eq!((a.width, a.height, a.triangles), (1024, 1024, 1_000_000));
+    }
 }

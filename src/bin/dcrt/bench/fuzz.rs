@@ -1,4 +1,4 @@
-//! `dcrt bench --fuzz-loaders SECONDS`: every mesh loader fed mutations of the files dcrt ships
+//! `dcrt bench fuzz --seconds SECONDS`: every mesh loader fed mutations of the files dcrt ships
 //! (scenes/meshes/, tests/data/vtk/) for SECONDS each. A loader must answer every input with a
 //! mesh that validates or an error; what it returns must also colour without a panic by each of
 //! its arrays (`scene::color::resolve`), and its parts must lie in order inside the mesh. A
@@ -7,6 +7,7 @@
 
 use anyhow::{Context, Result, bail};
 use base64::Engine;
+use clap::Args;
 use dcrt::scene::color::{ColorBy, resolve};
 use dcrt::scene::data::{Assoc, Keep, MeshData};
 use dcrt::scene::mesh::Mesh;
@@ -34,9 +35,19 @@ struct Tally {
     slowest_ms: f64,
 }
 
+#[derive(Args)]
+pub struct FuzzArgs {
+    /// Seconds of fuzzing per loader.
+    #[arg(long)]
+    pub seconds: f64,
+    /// The tallies as JSON on stdout too.
+    #[arg(long)]
+    pub json: bool,
+}
+
 pub fn run(seconds: f64, json: bool) -> Result<()> {
     if !(seconds > 0.0 && seconds.is_finite()) {
-        bail!("--fuzz-loaders needs a positive number of seconds per format, got {seconds}");
+        bail!("--seconds needs a positive number of seconds per format, got {seconds}");
     }
     // Panics are expected findings: report them, not the default hook's backtrace noise.
     std::panic::set_hook(Box::new(|info| {

@@ -1,143 +1,220 @@
-//! `dcrt bench`: the measurements behind docs/benchmarks.md. Primary-ray throughput per BVH
-//! preset and block store (`trace`), the distributed-cache sweep (`dc`), shading time against
-//! error (`shading`), cluster jobs under mpirun (`cluster`), and the mesh loaders' fuzzing
-//! (`fuzz`).
+//! `dcrt bench`: the measurements behind docs/benchmarks.md, one subcommand each: ray
+//! throughput per BVH preset, block store and shading mode (`rays`), the distributed-cache sweep
+//! (`dc`), shading time against error (`shading`), cluster jobs under mpirun (`cluster`, with
+//! the jobs' runner in `jobs`), the chapter's Figures 6-8 (`figures`), memory over a long orbit
+//! (`soak`), the mesh loaders' fuzzing (`fuzz`), and `job`, the render path with the
+//! measurement switches (`switches`) that the cluster bench and the figures run under mpirun.
 
 mod cluster;
 mod dc;
 mod figures;
 mod fuzz;
+mod jobs;
+mod rays;
 pub mod shading;
 mod soak;
-mod trace;
+mod switches;
 
-/// A peer renderer run beside dcrt in the same bench run (`--peer`), on the same cores.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Peer {
-    /// Embree 3 (`rtcIntersect8` packets, a thread per core) on the same camera rays, through
-    /// `scripts/embree-peer.sh`: primary-ray throughput.
-    Embree,
-    /// Mitsuba 3 (`llvm_ad_rgb`, `path`, independent sampler) on the same path-traced scenes,
-    /// through `scripts/mitsuba-peer.sh`: time against error (with `--shading`).
-    Mitsuba,
-}
+pub use switches::Switches;
 
-use crate::BenchArgs;
 use crate::checks::check_budget;
+use crate::render::RenderArgs;
+use crate::{BuildArgs, GpuArgs};
 use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
 use dcrt::blocks::Format;
-use dcrt::gpu::Gpu;
 use dcrt::gpu::frame::FrameStats;
 use dcrt::gpu::tracer::Tracer;
 use dcrt::render::frames::{FramePlan, Role, View, run_images};
 use dcrt::scene::MAX_GENERATED_TRIANGLES;
 use dcrt::scene::generate::Generator;
-use dcrt::scene::{Camera, Scene, check_image_size};
+use dcrt::scene::{Camera, Model, Scene, check_image_size};
+use std::path::{Path, PathBuf};
 
-pub fn bench(a: BenchArgs) -> Result<()> {
-    if let Some(seconds) = a.fuzz_loaders {
-        return fuzz::run(seconds, a.json);
+#[derive(Subcommand)]
+pub enum Bench {
+    /// BVH build time and rays per second (primary, and secondary with --modes) per obvhs
+    /// preset, block store and shading mode, with the traversal's counts; optionally Embree on
+    /// the same camera rays in the same run.
+    Rays(rays::RaysArgs),
+    /// Distributed-cache sweep in one process: replicated against caches of each size, mapping
+    /// and replicated blocks, over an orbit, as one rank of virtual ranks; memory per rank.
+    Dc(dc::DcArgs),
+    /// Time against error of AO and path tracing on the rm and assembly generators, and the
+    /// cost and error of the accuracy switches; optionally Mitsuba 3 on the same scenes.
+    Shading(shading::ShadingArgs),
+    /// mpirun jobs of this binary, replicated and with distributed caches, beside one process;
+    /// block fetch costs per transport; then the display benchmark per copy-thread count.
+    Cluster(cluster::ClusterArgs),
+    /// The chapter's Figures 6-8: traced mpirun jobs, their replays to 60 nodes, memory per
+    /// node, the display benchmark (figure6.png, figure7.png, figure8.png, figures.json).
+    Figures(figures::FiguresArgs),
+    /// Memory soak: an orbit of many frames in one process; resident memory at intervals and
+    /// its slope in bytes per frame.
+    Soak(soak::SoakArgs),
+    /// Fuzz every mesh loader with mutations of the shipped files (scenes/meshes/,
+    /// tests/data/vtk/; run from the repository); any input that panics, breaks a loader's
+    /// promise or takes over a second is saved in fuzz-crashes/.
+    Fuzz(fuzz::FuzzArgs),
+    /// One job of `bench cluster` and `bench figures`: `dcrt render` (the same options, the same
+    /// path) with the measurement switches. For the benches, not for users.
+    #[command(hide = true)]
+    Job(JobArgs),
+}
+
+/// `dcrt bench job`: the render options, and the switches.
+#[derive(Args)]
+pub struct JobArgs {
+    #[command(flatten)]
+    render: RenderArgs,
+    #[command(flatten)]
+    switches: Switches,
+}
+
+/// The model of `rays`, `dc` and `soak`: a scene, or a generated one; and the image size.
+#[derive(Args)]
+pub struct SceneArgs {
+    /// Scene file (`rays`: or a prepared block file, .dcb, traced as it is); without it, a
+    /// generated scene (--generator, --triangles).
+    scene: Option<PathBuf>,
+    /// The generator of the scene when none is given.
+    #[arg(long, default_value = "rm")]
+    generator: String,
+    /// Triangles of the generated scene.
+    #[arg(long, default_value_t = 1_000_000)]
+    triangles: u64,
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    #[arg(long, default_value_t = 1024)]
+    height: u32,
+}
+
+/// How a bench reports.
+#[derive(Args)]
+pub struct ReportArgs {
+    /// One JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// No progress bars (they are drawn on stderr when it is a terminal).
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+/// The display benchmark's jobs (`cluster`, `figures`): an HD frame, streamed to the display.
+#[derive(Args)]
+pub struct DisplayArgs {
+    /// Copy-thread counts of the display benchmark, comma separated; an empty list ("") skips
+    /// it.
+    #[arg(long, value_parser = counts, default_value = "1,2,3,4")]
+    copy_threads: Counts,
+    /// MPI ranks of each display job.
+    #[arg(long, default_value_t = 4)]
+    display_ranks: u32,
+    /// Frames of each display job (the first is not timed).
+    #[arg(long, default_value_t = 60)]
+    display_frames: u32,
+}
+
+/// A comma-separated list of counts, possibly empty (`--copy-threads ""`).
+#[derive(Clone, Debug)]
+pub struct Counts(Vec<u32>);
+
+fn counts(s: &str) -> std::result::Result<Counts, String> {
+    if s.trim().is_empty() {
+        return Ok(Counts(Vec::new()));
     }
-    if a.runs == 0 {
-        bail!("--runs must be at least 1");
+    s.split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<u32>()
+                .map_err(|e| format!("{c:?} is not a count: {e}"))
+        })
+        .collect::<std::result::Result<Vec<u32>, String>>()
+        .map(Counts)
+}
+
+pub fn bench(b: Bench) -> Result<()> {
+    match b {
+        Bench::Rays(a) => rays::bench(&a),
+        Bench::Dc(a) => dc::bench(&a),
+        Bench::Shading(a) => shading::bench(&a),
+        Bench::Cluster(a) => cluster::bench(&a),
+        Bench::Figures(a) => figures::bench(&a),
+        Bench::Soak(a) => soak::bench(&a),
+        Bench::Fuzz(a) => fuzz::run(a.seconds, a.json),
+        Bench::Job(a) => crate::render::render(a.render, &a.switches),
     }
-    check_image_size(a.width, a.height)?;
-    if !(1..=MAX_GENERATED_TRIANGLES).contains(&a.triangles) {
-        bail!(
-            "--triangles must be between 1 and {MAX_GENERATED_TRIANGLES}, got {}",
-            a.triangles
-        );
+}
+
+/// The checks every bench with a model makes before any work: the image size, the generated
+/// triangles, the step budget.
+fn check_model(width: u32, height: u32, triangles: u64, gpu: Option<&GpuArgs>) -> Result<()> {
+    check_image_size(width, height)?;
+    if !(1..=MAX_GENERATED_TRIANGLES).contains(&triangles) {
+        bail!("--triangles must be between 1 and {MAX_GENERATED_TRIANGLES}, got {triangles}");
     }
-    check_budget(a.gpu.step_budget)?;
-    if let Some(frames) = a.soak
-        && frames < 20
-    {
-        bail!("--soak needs at least 20 frames, got {frames}");
+    if let Some(g) = gpu {
+        check_budget(g.step_budget)?;
     }
-    match a.peer {
-        Some(Peer::Mitsuba) if !a.shading => bail!("--peer mitsuba needs --shading"),
-        Some(Peer::Embree) if a.shading || a.dc || a.cluster || a.soak.is_some() => {
+    Ok(())
+}
+
+impl SceneArgs {
+    /// The checks of `check_model`, and the block format of `build`.
+    fn check(&self, gpu: &GpuArgs) -> Result<Format> {
+        check_model(self.width, self.height, self.triangles, Some(gpu))?;
+        Ok(Format::new(gpu.build.block_size)?)
+    }
+
+    /// A prepared block file given as the scene, if it is one.
+    fn block_file(&self) -> Option<&Path> {
+        self.scene
+            .as_deref()
+            .filter(|p| p.extension().is_some_and(|e| e == "dcb"))
+    }
+
+    /// `what` refuses a block file: its model is built from a scene.
+    fn refuse_block_file(&self, what: &str) -> Result<()> {
+        if let Some(path) = self.block_file() {
             bail!(
-                "--peer embree measures primary rays: it goes without --shading, --dc, --cluster and --soak"
-            )
-        }
-        _ => {}
-    }
-    if a.shading {
-        if a.max_spp == 0 {
-            bail!("--max-spp must be at least 1");
-        }
-        // Two halves of the path reference, and of AO's quarter, need whole samples.
-        if a.reference_spp < 8 || !a.reference_spp.is_multiple_of(8) {
-            bail!(
-                "--reference-spp must be a multiple of 8 (two renders of half each; AO's are a quarter), got {}",
-                a.reference_spp
-            );
-        }
-        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
-        let small = |v: u32| if v == 1024 { 32 } else { v };
-        let args = shading::Args {
-            width: small(a.width),
-            height: small(a.height),
-            triangles: if a.triangles == 1_000_000 {
-                50_000
-            } else {
-                a.triangles
-            },
-            max_spp: a.max_spp,
-            reference_spp: a.reference_spp,
-            json: a.json,
-            plot: a.plot.as_deref(),
-            peer: a.peer,
-        };
-        return shading::run(&gpu, &args);
-    }
-    if let Some(dir) = &a.figures {
-        return figures::run(&a, dir);
-    }
-    if let Some(path) = a
-        .scene
-        .as_ref()
-        .filter(|p| p.extension().is_some_and(|e| e == "dcb"))
-    {
-        if a.dc || a.cluster || a.soak.is_some() {
-            bail!(
-                "{}: --dc, --cluster and --soak build their models from a scene; a block file is \
-                 benched as it is (primary rays per store and mode)",
+                "{}: bench {what} builds its model from a scene; a block file is benched as it \
+                 is by bench rays",
                 path.display()
             );
         }
-        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
-        return trace::run_file(&a, &gpu, path);
+        Ok(())
     }
-    let scene = match &a.scene {
-        Some(p) => Scene::load(p)?,
-        None => {
-            let g = Generator::parse(&a.generator).with_context(|| {
-                format!(
-                    "unknown generator '{}' (known: {})",
-                    a.generator,
-                    Generator::NAMES.join(", ")
-                )
-            })?;
-            Scene::generated(g, a.triangles, a.width, a.height)
-        }
-    };
-    let format = Format::new(a.gpu.block_size)?;
-    if a.cluster {
-        return cluster::run(&a, format);
+
+    /// The scene, its model and camera.
+    fn load(&self) -> Result<(Scene, Model, Camera)> {
+        let scene = match &self.scene {
+            Some(p) => Scene::load(p)?,
+            None => {
+                let g = Generator::parse(&self.generator).with_context(|| {
+                    format!(
+                        "unknown generator '{}' (known: {})",
+                        self.generator,
+                        Generator::NAMES.join(", ")
+                    )
+                })?;
+                Scene::generated(g, self.triangles, self.width, self.height)
+            }
+        };
+        dcrt::render::memory::check_generators(&scene)?;
+        let model = scene.load_model()?;
+        let camera = scene.camera_or_default(&model);
+        Ok((scene, model, camera))
     }
-    dcrt::render::memory::check_generators(&scene)?;
-    let model = scene.load_model()?;
-    let camera = scene.camera_or_default(&model);
-    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
-    if a.soak.is_some() {
-        return soak::run(&a, &gpu, &scene, model, camera, format);
-    }
-    if a.dc {
-        return dc::run(&a, &gpu, &scene, model, camera, format);
-    }
-    trace::run(&a, &gpu, &scene, model, camera, format)
+}
+
+/// The tracer settings of a bench: the GPU options, and the switches where it takes them.
+fn settings(gpu: &GpuArgs, switches: &switches::TracerSwitches) -> dcrt::gpu::tracer::Settings {
+    switches.apply(crate::settings(gpu))
+}
+
+/// The build options of `cluster` and `figures`, whose jobs read the model they prepare.
+fn format_of(build: &BuildArgs) -> Result<Format> {
+    Ok(Format::new(build.block_size)?)
 }
 
 /// The statistics of `frames` frames seen from `view` at `width` x `height`.
@@ -184,7 +261,7 @@ pub fn block_count_frame(
     Ok(counted?.remove(0))
 }
 
-/// The generated models of `--shading`, and of `--cluster` without a scene: the open rm model
+/// The generated models of `shading` and `figures`, and of `cluster` without a scene: the open rm model
 /// and the occluded assembly.
 pub const MODELS: [Generator; 2] = [Generator::Rm, Generator::Assembly];
 

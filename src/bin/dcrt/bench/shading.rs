@@ -1,12 +1,13 @@
-//! `dcrt bench --shading`: time against error for AO and path tracing on the rm and assembly
+//! `dcrt bench shading`: time against error for AO and path tracing on the rm and assembly
 //! generators with both samplers, the time each takes to reach given errors, and the cost and
 //! error of the accuracy knobs; with `--peer mitsuba`, Mitsuba 3 on the same path-traced scenes
 //! against the same references. A table, `--json`, and a PNG plot.
 
 mod mitsuba;
 
-use super::{MODELS, Peer, Table, emit};
-use anyhow::{Context, Result};
+use super::{MODELS, Table, check_model, emit};
+use anyhow::{Context, Result, bail};
+use clap::Args;
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
@@ -15,7 +16,7 @@ use dcrt::gpu::tracer::Settings;
 use dcrt::render::Prepared;
 use dcrt::scene::Scene;
 use dcrt::shading::{Mode, Offset, Sampler, Shading};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(serde::Serialize, Clone)]
 pub struct Point {
@@ -180,19 +181,66 @@ fn bits(f: &Frame) -> Vec<u8> {
     bytemuck::cast_slice(&f.pixels).to_vec()
 }
 
-pub struct Args<'a> {
-    pub width: u32,
-    pub height: u32,
-    pub triangles: u64,
-    pub max_spp: u32,
-    /// Samples per pixel of the references (AO: a quarter of it).
-    pub reference_spp: u32,
-    pub json: bool,
-    pub plot: Option<&'a Path>,
-    pub peer: Option<Peer>,
+/// Small images and models: every curve point is a render, and the references thousands of
+/// samples.
+#[derive(Args)]
+pub struct ShadingArgs {
+    #[arg(long, default_value_t = 32)]
+    width: u32,
+    #[arg(long, default_value_t = 32)]
+    height: u32,
+    /// Triangles of each generated model.
+    #[arg(long, default_value_t = 50_000)]
+    triangles: u64,
+    /// The largest spp of the curves (powers of two from 1).
+    #[arg(long, default_value_t = 1024)]
+    max_spp: u32,
+    /// Samples per pixel of the path references (AO: a quarter), two renders with the
+    /// independent sampler and other seeds; a multiple of 8.
+    #[arg(long, default_value_t = 4096)]
+    reference_spp: u32,
+    /// Also draw the curves into this PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// A peer renderer run beside dcrt in the same run: `mitsuba` renders the path-traced
+    /// scenes against the same references (scripts/mitsuba-peer.sh, which installs Mitsuba 3
+    /// into its own venv on first use).
+    #[arg(long, value_enum)]
+    peer: Option<Peer>,
+    /// One JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Use the first adapter whose name contains this text (default: the best GPU, else lavapipe).
+    #[arg(long)]
+    adapter: Option<String>,
 }
 
-pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
+/// A peer renderer run beside dcrt in the same bench run, on the same cores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Peer {
+    /// Mitsuba 3 (`llvm_ad_rgb`, `path`, independent sampler) on the same path-traced scenes,
+    /// through `scripts/mitsuba-peer.sh`: time against error.
+    Mitsuba,
+}
+
+/// `bench shading`: the checks, then the curves.
+pub fn bench(a: &ShadingArgs) -> Result<()> {
+    check_model(a.width, a.height, a.triangles, None)?;
+    if a.max_spp == 0 {
+        bail!("--max-spp must be at least 1");
+    }
+    // Two halves of the path reference, and of AO's quarter, need whole samples.
+    if a.reference_spp < 8 || !a.reference_spp.is_multiple_of(8) {
+        bail!(
+            "--reference-spp must be a multiple of 8 (two renders of half each; AO's are a quarter), got {}",
+            a.reference_spp
+        );
+    }
+    let gpu = Gpu::new(a.adapter.as_deref())?;
+    run(&gpu, a)
+}
+
+fn run(gpu: &Gpu, a: &ShadingArgs) -> Result<()> {
     let (w, h) = (a.width, a.height);
     // AO with few rays per hit, so that spp, not rays, carry the convergence.
     let (ao_rays, max_depth) = (4u32, 3u32);
@@ -465,7 +513,7 @@ pub fn run(gpu: &Gpu, a: &Args<'_>) -> Result<()> {
         versus,
         time_ratio,
     };
-    if let Some(path) = a.plot {
+    if let Some(path) = a.plot.as_deref() {
         plot(&report.curve, path)?;
     }
     emit(a.json, &report, print)
@@ -795,5 +843,29 @@ fn line(img: &mut image::RgbImage, a: (u32, u32), b: (u32, u32), c: image::Rgb<u
         if x < img.width() && y < img.height() {
             img.put_pixel(x, y, c);
         }
+    }
+}
+
+#[cfg(test)]
+mod defaults {
+    use super::*;
+    use clap::Parser;
+
+    fn parsed(args: &[&str]) -> ShadingArgs {
+        let all = [&["dcrt", "bench", "shading"][..], args].concat();
+        match crate::Cli::try_parse_from(all).unwrap().command {
+            crate::Command::Bench(crate::bench::Bench::Shading(a)) => a,
+            _ => unreachable!("bench shading parses as itself"),
+        }
+    }
+
+    /// The small sizes are the options' own defaults, and a value given is taken as it is (the
+    /// old bench rewrote 1024 and 1000000 into them).
+    #[test]
+    fn small_sizes_are_defaults_and_given_sizes_are_kept() {
+        let a = parsed(&[]);
+        assert_eq!((a.width, a.height, a.triangles), (32, 32, 50_000));
+        let a = parsed(&["--width", "1024", "--triangles", "1000000"]);
+        assert_eq!((a.width, a.height, a.triangles), (1024, 32, 1_000_000));
     }
 }

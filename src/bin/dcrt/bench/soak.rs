@@ -1,12 +1,14 @@
-//! `dcrt bench --soak FRAMES`: one process renders a long orbit, as a real-time session would
-//! (each frame converted to 8-bit sRGB and dropped), and reports resident memory at intervals and
-//! its slope in bytes per frame. A leak of a few KiB a frame shows over thousands of frames.
+//! `dcrt bench soak --frames FRAMES`: one process renders a long orbit, as a real-time session
+//! would (each frame converted to 8-bit sRGB and dropped), and reports resident memory at
+//! intervals and its slope in bytes per frame. A leak of a few KiB a frame shows over thousands of frames.
 
-use super::{Table, emit};
-use crate::{BenchArgs, settings};
-use anyhow::{Context, Result};
+use super::switches::TracerSwitches;
+use super::{ReportArgs, SceneArgs, Table, emit, settings};
+use crate::GpuArgs;
+use anyhow::{Context, Result, bail};
+use clap::Args;
 use dcrt::blocks::Format;
-use dcrt::dc::{CacheMap, CacheSize};
+use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::gpu::Gpu;
 use dcrt::progress::Progress;
 use dcrt::render::frames::{FramePlan, Role, View, run_images};
@@ -14,6 +16,49 @@ use dcrt::render::memory::resident;
 use dcrt::render::{DcOptions, Prepared, mib};
 use dcrt::scene::{Camera, Model, Scene};
 use std::time::Instant;
+
+#[derive(Args)]
+pub struct SoakArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Frames of the orbit, at least 20.
+    #[arg(long)]
+    frames: u32,
+    /// The in-process ranks the model is split over.
+    #[arg(long, default_value_t = 8)]
+    virtual_ranks: u32,
+    /// The rank this process renders as.
+    #[arg(long, default_value_t = 0)]
+    rank: u32,
+    /// Cache size (a fraction of the model, lines or bytes; the `ize` mapping), or `none` to
+    /// replicate the model.
+    #[arg(long, default_value = "1/32")]
+    cache: String,
+    /// What every rank replicates besides its own blocks.
+    #[arg(long, value_enum, default_value_t = Replicate::Root)]
+    replicate_blocks: Replicate,
+    #[command(flatten)]
+    report: ReportArgs,
+    #[command(flatten)]
+    gpu: GpuArgs,
+    #[command(flatten)]
+    switches: TracerSwitches,
+}
+
+/// `bench soak`: the checks, the scene's model, the orbit.
+pub fn bench(a: &SoakArgs) -> Result<()> {
+    let format = a.scene.check(&a.gpu)?;
+    if a.frames < 20 {
+        bail!(
+            "--frames must be at least 20 for bench soak, got {}",
+            a.frames
+        );
+    }
+    a.scene.refuse_block_file("soak")?;
+    let (scene, model, camera) = a.scene.load()?;
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    run(a, &gpu, &scene, model, camera, format)
+}
 
 #[derive(serde::Serialize)]
 struct Sample {
@@ -63,30 +108,30 @@ fn slope(points: &[(f64, f64)]) -> f64 {
     if sxx > 0.0 { sxy / sxx } else { 0.0 }
 }
 
-pub fn run(
-    a: &BenchArgs,
+fn run(
+    a: &SoakArgs,
     gpu: &Gpu,
     scene: &Scene,
     model: Model,
     camera: Camera,
     format: Format,
 ) -> Result<()> {
-    let frames = a.soak.unwrap_or(0);
+    let frames = a.frames;
     let triangles = model.triangles.len();
-    let prepared = Prepared::from_model(model, a.gpu.bvh_preset, format, 0.0)?;
-    // The first of --caches, `none` replicating; as rank --rank of --virtual-ranks.
-    let cache = a.caches.first().filter(|c| c.as_str() != "none");
+    let prepared = Prepared::from_model(model, a.gpu.build.bvh_preset, format, 0.0)?;
+    // `--cache none` replicates; else as rank --rank of --virtual-ranks.
+    let cache = Some(&a.cache).filter(|c| c.as_str() != "none");
     let dc = match cache {
         Some(c) => Some(DcOptions {
             ranks: a.virtual_ranks,
             rank: a.rank,
             cache: CacheSize::parse(c)?,
             map: CacheMap::Ize,
-            replicate: a.replicate_blocks.first().copied().unwrap_or_default(),
+            replicate: a.replicate_blocks,
         }),
         None => None,
     };
-    let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu), dc.as_ref())?;
+    let mut tracer = prepared.tracer_with(gpu, settings(&a.gpu, &a.switches), dc.as_ref())?;
     let every = (frames / 50).max(1);
     let start = Instant::now();
     let mut samples = Vec::with_capacity(52);
@@ -106,16 +151,19 @@ pub fn run(
         trace_dir: None,
     };
     let mut live_warm = gpu.live();
-    let bar = Progress { quiet: a.quiet }.bar(u64::from(frames), "soak frames");
+    let bar = Progress {
+        quiet: a.report.quiet,
+    }
+    .bar(u64::from(frames), "soak frames");
     let table = Table(&[("frame", 7), ("seconds", 9), ("RSS MiB", 9)]);
-    if !a.json {
+    if !a.report.json {
         table.header();
     }
     run_images(
         &mut tracer,
         &plan,
-        a.width,
-        a.height,
+        a.scene.width,
+        a.scene.height,
         scene.background,
         &mut |i, frame, _| {
             std::hint::black_box(dcrt::output::to_rgb8(&frame));
@@ -125,7 +173,7 @@ pub fn run(
             }
             if i % every == 0 || i + 1 == frames {
                 let s = sample(i)?;
-                if !a.json {
+                if !a.report.json {
                     bar.suspend(|| {
                         table.row(&[
                             s.frame.to_string(),
@@ -150,8 +198,8 @@ pub fn run(
         adapter: gpu.describe(),
         scene: scene.path.display().to_string(),
         triangles,
-        width: a.width,
-        height: a.height,
+        width: a.scene.width,
+        height: a.scene.height,
         frames,
         cache: cache.cloned(),
         ranks: a.virtual_ranks,
@@ -165,7 +213,7 @@ pub fn run(
         gpu_objects_end: gpu.live(),
         samples,
     };
-    emit(a.json, &report, |r| {
+    emit(a.report.json, &report, |r| {
         println!(
             "{} frames at {:.1} frames/s: RSS {:.1} MiB at frame 0, {:.1} MiB at the end (peak \
              {:.1}); slope after frame {}: {:.0} bytes per frame; GPU objects {}",

@@ -139,7 +139,7 @@ fn errors_name_piece_array_and_line() {
     );
 }
 
-/// Found by `dcrt bench --fuzz-loaders`: an inline compression header whose base64 text is
+/// Found by `dcrt bench fuzz`: an inline compression header whose base64 text is
 /// padded early decodes to fewer bytes than the header's words (it panicked).
 #[test]
 fn short_inline_header_is_an_error() {
@@ -156,7 +156,7 @@ fn short_inline_header_is_an_error() {
     );
 }
 
-/// Found by `dcrt bench --fuzz-loaders`: appended base64 data with a padding character in
+/// Found by `dcrt bench fuzz`: appended base64 data with a padding character in
 /// the middle decoded to fewer bytes than the array needs (it panicked).
 #[test]
 fn short_appended_data_is_an_error() {

@@ -1,4 +1,4 @@
-//! The Mitsuba 3 peer of `dcrt bench --shading --peer mitsuba`: the exchange directory that
+//! The Mitsuba 3 peer of `dcrt bench shading --peer mitsuba`: the exchange directory that
 //! `scripts/mitsuba-peer.sh` renders (`scene.json`, one binary PLY per mesh), the script's run,
 //! and reading its images back.
 

@@ -1,10 +1,12 @@
-//! `dcrt bench`: BVH build time and ray throughput per obvhs preset, block store and shading
-//! mode, with the traversal's counts (steps, node visits per node block, blocks entered), and
-//! optionally a native peer tracing the same camera rays in the same run (`--peer embree`).
+//! `dcrt bench rays`: BVH build time and ray throughput per obvhs preset, block store and
+//! shading mode, with the traversal's counts (steps, node visits per node block, blocks
+//! entered), and optionally a native peer tracing the same camera rays in the same run (`--peer
+//! embree`).
 
-use super::{Peer, Table, block_count_frame, emit, frame_stats, median};
-use crate::{BenchArgs, settings};
+use super::{ReportArgs, SceneArgs, Table, block_count_frame, emit, frame_stats, median};
+use crate::{GpuArgs, settings};
 use anyhow::{Context, Result, bail};
+use clap::Args;
 use dcrt::blocks::Format;
 use dcrt::bvh::Preset;
 use dcrt::gpu::Gpu;
@@ -16,6 +18,57 @@ use dcrt::render::frames::View;
 use dcrt::scene::{Camera, Model, Scene};
 use dcrt::shading::{Mode, Shading};
 use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct RaysArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Timed frames after one warm-up frame; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Also build and trace with every obvhs preset, side by side.
+    #[arg(long)]
+    bvh_presets: bool,
+    /// Trace with both block stores (texture, buffer), side by side.
+    #[arg(long)]
+    stores: bool,
+    /// Shading modes to measure rays/s in (primary and secondary rays over the frame time);
+    /// `ao` traces 4 rays per hit and `path` at most 3 bounces, to keep a frame short.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "cast")]
+    modes: Vec<Mode>,
+    /// A peer renderer run beside dcrt in the same run: `embree` traces the same camera rays on
+    /// every core and reports both rates, their ratio and how often the hits agree
+    /// (scripts/embree-peer.sh).
+    #[arg(long, value_enum)]
+    peer: Option<Peer>,
+    #[command(flatten)]
+    report: ReportArgs,
+    #[command(flatten)]
+    gpu: GpuArgs,
+}
+
+/// A peer renderer run beside dcrt in the same bench run, on the same cores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Peer {
+    /// Embree 3 (`rtcIntersect8` packets, a thread per core) on the same camera rays, through
+    /// `scripts/embree-peer.sh`: primary-ray throughput.
+    Embree,
+}
+
+/// `bench rays`: a block file traced as it is, else the scene's model built with each preset.
+pub fn bench(a: &RaysArgs) -> Result<()> {
+    let format = a.scene.check(&a.gpu)?;
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if let Some(path) = a.scene.block_file() {
+        let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+        return run_file(a, &gpu, path);
+    }
+    let (scene, model, camera) = a.scene.load()?;
+    let gpu = Gpu::new(a.gpu.adapter.as_deref())?;
+    run(a, &gpu, &scene, model, camera, format)
+}
 
 /// The bench's AO rays per hit and path bounces: enough secondary rays to measure, few enough
 /// that a 1024x1024 frame stays short on a CPU adapter.
@@ -93,7 +146,7 @@ struct BenchReport {
 }
 
 /// The block stores and shading modes each tree is measured with.
-fn stores_and_modes(a: &BenchArgs) -> (Vec<Store>, Vec<Mode>) {
+fn stores_and_modes(a: &RaysArgs) -> (Vec<Store>, Vec<Mode>) {
     let stores = if a.stores {
         Store::ALL.to_vec()
     } else {
@@ -116,8 +169,8 @@ fn shading_for(mode: Mode) -> Shading {
     }
 }
 
-pub fn run(
-    a: &BenchArgs,
+fn run(
+    a: &RaysArgs,
     gpu: &Gpu,
     scene: &Scene,
     model: Model,
@@ -132,12 +185,15 @@ pub fn run(
             Preset::Medium,
         ]
     } else {
-        vec![a.gpu.bvh_preset]
+        vec![a.gpu.build.bvh_preset]
     };
     let mut rows = Vec::new();
     let (stores, modes) = stores_and_modes(a);
     let mut peer_ids = None;
-    let bar = Progress { quiet: a.quiet }.bar(
+    let bar = Progress {
+        quiet: a.report.quiet,
+    }
+    .bar(
         (presets.len() * stores.len() * modes.len()) as u64,
         "bench rows",
     );
@@ -167,10 +223,12 @@ pub fn run(
                     mode,
                 )?);
             }
-            if a.peer.is_some() && preset == a.gpu.bvh_preset && store == a.gpu.store {
+            if a.peer.is_some() && preset == a.gpu.build.bvh_preset && store == a.gpu.store {
                 tracer.set_shading(shading_for(Mode::Cast))?;
-                let (frame, _) =
-                    tracer.render(&camera.basis(a.width, a.height), scene.background)?;
+                let (frame, _) = tracer.render(
+                    &camera.basis(a.scene.width, a.scene.height),
+                    scene.background,
+                )?;
                 peer_ids = Some(frame.pixels.iter().map(|p| p.id).collect::<Vec<u32>>());
             }
         }
@@ -179,7 +237,7 @@ pub fn run(
     let main_row = rows
         .iter()
         .find(|r| {
-            r.preset == format!("{:?}", a.gpu.bvh_preset).to_lowercase()
+            r.preset == format!("{:?}", a.gpu.build.bvh_preset).to_lowercase()
                 && r.store == a.gpu.store
                 && r.mode == modes[0]
         })
@@ -196,8 +254,8 @@ pub fn run(
         adapter: gpu.describe(),
         scene: scene.path.display().to_string(),
         triangles: model.triangles.len(),
-        width: a.width,
-        height: a.height,
+        width: a.scene.width,
+        height: a.scene.height,
         runs: a.runs,
         bvh_preset: main_row.preset.clone(),
         bvh_build_ms: main_row.bvh_build_ms,
@@ -212,7 +270,7 @@ pub fn run(
         rows: Vec::new(),
     };
     let report = BenchReport { rows, ..report };
-    emit(a.json, &report, print)
+    emit(a.report.json, &report, print)
 }
 
 /// The tree a row traces: the preset it was built with (or `file`), its build time and depth.
@@ -224,7 +282,7 @@ struct Tree {
 
 /// A prepared block file traced as it is (its tree fixed, so no presets and no peer), per store
 /// and mode: the same rows as a scene's, its file name as the preset.
-pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
+fn run_file(a: &RaysArgs, gpu: &Gpu, path: &Path) -> Result<()> {
     if a.bvh_presets || a.peer.is_some() {
         bail!(
             "{}: a block file holds its BVH; --bvh-presets and --peer need a scene",
@@ -263,8 +321,8 @@ pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
         adapter: gpu.describe(),
         scene: path.display().to_string(),
         triangles: loaded.triangles as usize,
-        width: a.width,
-        height: a.height,
+        width: a.scene.width,
+        height: a.scene.height,
         runs: a.runs,
         bvh_preset: main.preset.clone(),
         bvh_build_ms: 0.0,
@@ -278,12 +336,12 @@ pub fn run_file(a: &BenchArgs, gpu: &Gpu, path: &Path) -> Result<()> {
         peer: None,
         rows: Vec::new(),
     };
-    emit(a.json, &BenchReport { rows, ..report }, print)
+    emit(a.report.json, &BenchReport { rows, ..report }, print)
 }
 
 /// One row: a warm-up frame (pipeline compilation, first touch of buffers), then `--runs`.
 fn measure(
-    a: &BenchArgs,
+    a: &RaysArgs,
     tracer: &mut Tracer<'_>,
     background: [f32; 3],
     camera: Camera,
@@ -292,7 +350,7 @@ fn measure(
     mode: Mode,
 ) -> Result<BenchRow> {
     let frames = u32::try_from(a.runs).map_or(u32::MAX, |r| r.saturating_add(1));
-    let size = (a.width, a.height);
+    let size = (a.scene.width, a.scene.height);
     let runs = frame_stats(tracer, View::Fixed(camera), frames, size, background)?;
     let mut times: Vec<f64> = runs[1..].iter().map(|s| s.seconds * 1e3).collect();
     let s = runs.last().cloned().unwrap_or_default();
@@ -340,7 +398,7 @@ fn peer_script() -> Result<PathBuf> {
 
 /// Writes the model and the camera to a temporary folder, runs the Embree peer on it and
 /// compares its primitive ids with dcrt's (`ids`, one per pixel).
-fn embree(a: &BenchArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<PeerReport> {
+fn embree(a: &RaysArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<PeerReport> {
     let script = peer_script()?;
     let dir = std::env::temp_dir().join(format!("dcrt-peer-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -352,12 +410,12 @@ fn embree(a: &BenchArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<
             mesh.extend_from_slice(&v.to_le_bytes());
         }
         std::fs::write(dir.join("mesh.bin"), mesh)?;
-        let b = camera.basis(a.width, a.height);
+        let b = camera.basis(a.scene.width, a.scene.height);
         let v = |x: [f32; 3]| format!("{:e} {:e} {:e}", x[0], x[1], x[2]);
         let cam = format!(
             "{} {} {}\n{}\n{}\n{}\n{}\n",
-            a.width,
-            a.height,
+            a.scene.width,
+            a.scene.height,
             a.runs,
             v(b.origin),
             v(b.forward),

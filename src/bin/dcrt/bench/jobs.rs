@@ -1,8 +1,9 @@
-//! `dcrt bench --cluster`: runs `mpirun` jobs of this same binary side by side with a
-//! single-process run of the same model, and tabulates frame times, block fetch costs per
-//! transport and the display's frame rate against the MPI bandwidth (chapter 5.5).
+//! The `mpirun` jobs of `dcrt bench cluster` and `dcrt bench figures`: jobs of this same binary's
+//! `bench job` (the render path with the measurement switches) side by side with a
+//! single-process run of the same model; frame times, block fetch costs per transport and the
+//! display's frame rate against the MPI bandwidth (chapter 5.5).
 
-use crate::error::{Error, Result};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -19,6 +20,9 @@ pub enum Transport {
     /// `--mca osc ucx`.
     Ucx,
 }
+
+/// The subcommand of this binary a bench job runs: `dcrt render`'s options, and the switches.
+pub const JOB: [&str; 2] = ["bench", "job"];
 
 impl Transport {
     pub fn mca(self) -> &'static [&'static str] {
@@ -72,25 +76,26 @@ pub struct Row {
     pub fetch_us_per_round: f64,
 }
 
-fn run(cmd: &mut Command, what: &str) -> Result<()> {
+pub fn run(cmd: &mut Command, what: &str) -> Result<()> {
     let out = cmd
         .output()
-        .map_err(|e| Error::Invalid(format!("{what}: cannot start: {e}")))?;
+        .with_context(|| format!("{what}: cannot start (apt install openmpi-bin)"))?;
     if !out.status.success() {
         let err = String::from_utf8_lossy(&out.stderr);
         let tail: Vec<&str> = err.lines().rev().take(12).collect();
-        return Err(Error::Invalid(format!(
+        bail!(
             "{what} failed ({}):\n{}",
             out.status,
             tail.into_iter().rev().collect::<Vec<_>>().join("\n")
-        )));
+        );
     }
     Ok(())
 }
 
 fn read_stats(path: &Path) -> Result<Value> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::format(path, None, e.to_string()))
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))
 }
 
 fn f(v: &Value) -> f64 {
@@ -101,7 +106,8 @@ impl Plan {
     fn render_args(&self, model: &Path, out: &str, stats: &Path) -> Vec<String> {
         let png = self.dir.join(format!("{out}.png"));
         [
-            "render",
+            JOB[0],
+            JOB[1],
             &model.to_string_lossy(),
             "-o",
             &png.to_string_lossy(),
@@ -121,12 +127,7 @@ impl Plan {
     }
 
     fn mpirun(&self, k: u32, transport: Transport) -> Command {
-        let mut cmd = Command::new("mpirun");
-        cmd.arg("--oversubscribe")
-            .args(transport.mca())
-            .args(["-n", &k.to_string()])
-            .arg(&self.exe);
-        cmd
+        mpirun(&self.exe, k, transport)
     }
 
     /// Frame time of one process, then every rank count and cache on shared memory, then the
@@ -180,7 +181,7 @@ impl Plan {
                 let mut cmd = self.mpirun(k, t);
                 cmd.args(self.render_args(model, &tag, &stats));
                 if let Some(c) = &cache {
-                    // SIZE[:MAP[:OVERLAP[:REPLICATE]]], as `--cluster-caches` checked it.
+                    // SIZE[:MAP[:OVERLAP[:REPLICATE]]], as `--caches` checked it.
                     let mut parts = c.split(':');
                     let size = parts.next().unwrap_or(c);
                     let map = parts.next().unwrap_or("ize");
@@ -224,6 +225,16 @@ impl Plan {
         }
         Ok(out)
     }
+}
+
+/// `mpirun` of `k` ranks of `exe` over `transport`, oversubscribed (more ranks than cores).
+pub fn mpirun(exe: &Path, k: u32, transport: Transport) -> Command {
+    let mut cmd = Command::new("mpirun");
+    cmd.arg("--oversubscribe")
+        .args(transport.mca())
+        .args(["-n", &k.to_string()])
+        .arg(exe);
+    cmd
 }
 
 fn cluster_row(
