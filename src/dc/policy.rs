@@ -1,7 +1,7 @@
 //! The host's cache policy between trace rounds (docs/ARCHITECTURE.md, The round loop): the
 //! round's fault list comes in; which blocks to load into which lines, what each load evicts, and
 //! the changes to the GPU's block-row table go out. Pure bookkeeping, so it is tested without a
-//! GPU; `gpu::rounds` applies its plans.
+//! GPU; `gpu::faults` applies its plans.
 //!
 //! The first fault for a line wins it; the round's other faults on that line fault again next
 //! round. Every round with faults so loads at least one block, and a single-line cache still

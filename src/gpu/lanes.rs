@@ -43,8 +43,8 @@ const MAX_FITTED_SPARES: usize = 8;
 
 /// A spare lane sized to the cache's batches holds this many times the fitted batch's pixels
 /// (`Tracer::fit_pixels`): a batch over a sparse part of the image takes more than its even share
-/// (`rounds::FaultDensity`), up to the lane's size. Two rather than four: twice the lanes in the
-/// same memory let a batch start every round (`rounds::fill_share`; rm 3M at 1/32, rank 0 of 8:
+/// (`density::FaultDensity`), up to the lane's size. Two rather than four: twice the lanes in the
+/// same memory let a batch start every round (`scheduler::fill_share`; rm 3M at 1/32, rank 0 of 8:
 /// 33.5-33.8 fault rounds a warm frame against 35.3-35.7 with four).
 const SPARE_FIT_SHARE: u32 = 2;
 

@@ -59,7 +59,7 @@ pub struct Params {
     /// Tiles across a band of the batch order (`mirror::tiles::Tiling::band`); 0: one band.
     pub band_tiles: u32,
     /// The lane of the batch a dispatch serves: the high bits of a fault's requester
-    /// (`gpu::rounds::requester`).
+    /// (`requester` in shaders/shared/dc.wgsl, `gpu::faults::requester_lane`).
     pub lane: u32,
 }
 const _: () = assert!(std::mem::size_of::<Params>() == 208);

@@ -12,7 +12,13 @@ fn module_map() -> Vec<String> {
         .split("## Module map")
         .nth(1)
         .expect("a Module map section");
-    let block = map.split("```").nth(1).expect("the map in a code block");
+    // The layer diagram's block, then the tree's, which starts at `src/`.
+    let block = map
+        .split("```")
+        .skip(1)
+        .step_by(2)
+        .find(|b| b.trim_start().starts_with("src/"))
+        .expect("the map in a code block");
     let mut entries = Vec::new();
     let (mut dir, mut root) = (String::new(), String::new());
     for line in block.lines().filter(|l| !l.trim().is_empty()) {
@@ -71,5 +77,21 @@ fn the_module_map_names_every_module_and_only_what_exists() {
             named.contains(&name) || named.contains(module),
             "src/{name} is missing from the module map in docs/ARCHITECTURE.md"
         );
+    }
+}
+
+#[test]
+fn the_architecture_opens_with_the_layers_and_the_module_map() {
+    let text = std::fs::read_to_string(repo().join("docs/ARCHITECTURE.md")).unwrap();
+    let first = text.lines().find(|l| l.starts_with("## "));
+    assert_eq!(first, Some("## Module map"));
+    // The GPU side is mapped file by file: a stage split off must be named.
+    let entries = module_map();
+    for f in std::fs::read_dir(repo().join("src/gpu")).unwrap() {
+        let name = f.unwrap().file_name().to_string_lossy().into_owned();
+        if name.ends_with(".rs") {
+            let path = format!("src/gpu/{name}");
+            assert!(entries.contains(&path), "{path} is missing from the module map");
+        }
     }
 }
