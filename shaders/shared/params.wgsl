@@ -36,7 +36,7 @@ struct Params {
     rect_h: u32,
     pad0: u32,
     pad1: u32,
-    // Entries a ray may set aside for absent blocks this frame (shaders/trace.wgsl); 0: it
+    // Entries a ray may set aside for absent blocks this frame (shaders/traverse.wgsl); 0: it
     // suspends at every fault.
     dc_defer: u32,
     // 0, unknown to the compiler (shared/compensated.wgsl).

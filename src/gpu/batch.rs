@@ -10,7 +10,7 @@ use std::mem::size_of;
 /// 8x8 tiles of rays.
 pub const TILE_RAYS: u32 = crate::mirror::tiles::TILE * crate::mirror::tiles::TILE;
 /// Bytes of one traversal stack entry: the index, and the entry distance with the count in its
-/// low bits (trace.wgsl, pack_entry).
+/// low bits (traverse.wgsl, pack_entry).
 const STACK_ENTRY_BYTES: u64 = 8;
 
 pub struct Batch {

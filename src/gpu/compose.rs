@@ -69,7 +69,7 @@ pub fn module_file(name: &str, store: &str) -> String {
     format!("shared/{name}.wgsl")
 }
 
-/// Composes `kernel` (a file name such as `trace.wgsl`) with the block store module `store`.
+/// Composes `kernel` (a file name such as `traverse.wgsl`) with the block store module `store`.
 pub fn compose(files: &dyn Files, kernel: &str, store: &str) -> Result<Composed, String> {
     let mut out = Composed {
         text: String::new(),

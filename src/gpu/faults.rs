@@ -20,7 +20,7 @@ use std::mem::size_of;
 use std::time::Instant;
 
 /// Stack entries a ray with a distributed cache may set aside for absent blocks while it goes on
-/// with what the GPU holds (`DEFER_SLOTS` in shaders/trace.wgsl); its faults go out together.
+/// with what the GPU holds (`DEFER_SLOTS` in shaders/traverse.wgsl); its faults go out together.
 pub const DEFER_SLOTS: u32 = 4;
 
 /// A rank's cache while it traces: the policy, the block source and this frame's trace.

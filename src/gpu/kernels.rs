@@ -220,11 +220,11 @@ impl Kernel {
 /// constant), and modes without secondary rays get no spawn or gather pipeline.
 pub struct Kernels {
     pub raygen: Kernel,
-    pub trace: Kernel,
+    pub traverse: Kernel,
     /// With a cache, `trace` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
     /// nothing aside (`Params::dc_defer` 0): a CPU driver runs the set-aside code of a loop pass
     /// whether or not a ray takes it (2.8% of a 1/8-cache frame's instructions).
-    pub trace_suspending: Option<Kernel>,
+    pub traverse_suspending: Option<Kernel>,
     pub args: Kernel,
     /// With a cache, after each round: the listed faults' requesters into the fault list.
     pub requesters: Kernel,
@@ -245,12 +245,12 @@ impl Kernels {
         let suspending = defers.then(|| {
             let mut c = c.clone();
             c.count(Override::DeferSlots, 0);
-            Kernel::new(gpu, "trace", store, &c)
+            Kernel::new(gpu, "traverse", store, &c)
         });
         Kernels {
             raygen: k("raygen"),
-            trace: k("trace"),
-            trace_suspending: suspending,
+            traverse: k("traverse"),
+            traverse_suspending: suspending,
             args: k("args"),
             requesters: k("requesters"),
             shade: k("shade"),

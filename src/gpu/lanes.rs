@@ -15,8 +15,8 @@ use std::mem::size_of;
 pub(super) struct BoundKernels {
     pub raygen: Bound,
     /// Indexed by the live list the round reads.
-    pub trace: [Bound; 2],
-    pub trace_suspending: Option<[Bound; 2]>,
+    pub traverse: [Bound; 2],
+    pub traverse_suspending: Option<[Bound; 2]>,
     pub args: [Bound; 2],
     pub requesters: Bound,
     pub shade: Bound,
@@ -161,8 +161,8 @@ impl Tracer<'_> {
         };
         BoundKernels {
             raygen: k.raygen.bind(gpu, with(fill)),
-            trace: each(&k.trace),
-            trace_suspending: k.trace_suspending.as_ref().map(each),
+            traverse: each(&k.traverse),
+            traverse_suspending: k.traverse_suspending.as_ref().map(each),
             args: each(&k.args),
             requesters: k.requesters.bind(gpu, with(fill)),
             shade: k.shade.bind(gpu, with(fill)),
@@ -193,8 +193,8 @@ impl BoundKernels {
     pub(super) fn placeholder() -> BoundKernels {
         BoundKernels {
             raygen: Bound::empty(),
-            trace: [Bound::empty(), Bound::empty()],
-            trace_suspending: None,
+            traverse: [Bound::empty(), Bound::empty()],
+            traverse_suspending: None,
             args: [Bound::empty(), Bound::empty()],
             requesters: Bound::empty(),
             shade: Bound::empty(),

@@ -179,7 +179,7 @@ pub struct Counter {
     pub dispatch: [u32; 3],
 }
 
-/// `Stats` in `shaders/trace.wgsl`.
+/// `Stats` in `shaders/traverse.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Stats {

@@ -24,7 +24,7 @@ impl Tracer<'_> {
     /// Generates the batch's rays (primary, or a wave of secondary rays) and runs trace rounds
     /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
     /// Returns how many rays entered traversal.
-    pub(super) fn trace_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
+    pub(super) fn traverse_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
         self.record_start(&mut enc, 0, gen_);
@@ -77,9 +77,9 @@ impl Tracer<'_> {
         let o = 1 - cur;
         let ind = Dispatch::Indirect(&b.counters[cur]);
         // A frame that sets nothing aside runs the kernel without the set-aside code.
-        let (trace, trace_bound) = match (&k.trace_suspending, &bound.trace_suspending) {
+        let (trace, trace_bound) = match (&k.traverse_suspending, &bound.traverse_suspending) {
             (Some(t), Some(b)) if self.params.dc_defer == 0 => (t, &b[cur]),
-            _ => (&k.trace, &bound.trace[cur]),
+            _ => (&k.traverse, &bound.traverse[cur]),
         };
         trace.dispatch(enc, trace_bound, ind, self.stamps(first, false));
         let groups = Dispatch::Over(1);

@@ -45,7 +45,7 @@ impl Tracer<'_> {
             self.params.flags = sample_flags(sh, basis, s);
             let t = Instant::now();
             self.params.albedo_stride = 1;
-            stats.traced_rays += u64::from(self.trace_batch(stats, Gen::Primary)?);
+            stats.traced_rays += u64::from(self.traverse_batch(stats, Gen::Primary)?);
             let t2 = Instant::now();
             stats.trace_seconds += (t2 - t).as_secs_f64();
             self.resolve_albedos(stats)?;
@@ -53,7 +53,7 @@ impl Tracer<'_> {
             for _ in 0..waves {
                 let t = Instant::now();
                 self.params.albedo_stride = fan;
-                let live = self.trace_batch(stats, Gen::Secondary { fan })?;
+                let live = self.traverse_batch(stats, Gen::Secondary { fan })?;
                 stats.trace_seconds += t.elapsed().as_secs_f64();
                 // Only path tracing shades the hits of secondary rays.
                 if sh.mode == Mode::Path {

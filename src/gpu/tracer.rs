@@ -76,7 +76,7 @@ pub struct Settings {
     pub fault_cap: u32,
     /// Count node visits and node- and triangle-block entries in every trace round
     /// (`FrameStats::node_visits` and the two after it; 0 without). Off by default: the counts
-    /// cost the trace loop time (`BLOCK_COUNTS` in shaders/trace.wgsl), and the benchmarks take
+    /// cost the trace loop time (`BLOCK_COUNTS` in shaders/traverse.wgsl), and the benchmarks take
     /// them from a frame of their own (`Tracer::set_block_counts`).
     pub block_counts: bool,
 }
