@@ -28,6 +28,8 @@ const MARKED_FRAMES: usize = 40;
 
 /// Draws `t` to `path` as `format` (whole or not at all).
 pub fn draw(t: &Traces, path: &Path, format: Format) -> Result<()> {
+    // The layout measures text: no font, no picture (and a clear error).
+    chart::font()?;
     let p = Plot::of(t);
     chart::save(path, format, (W, p.height()?), |root| p.draw(root))
 }
