@@ -703,8 +703,56 @@ pub fn linear<'a, 'b>(
 }
 
 /// A chart's context with a log y axis (and a linear or log x axis).
-pub type LogY<'a, 'b, X> =
-    ChartContext<'a, Backend<'b>, Cartesian2d<X, plotters::coord::combinators::LogCoord<f64>>>;
+pub type LogY<'a, 'b, X> = ChartContext<'a, Backend<'b>, Cartesian2d<X, LogTicked>>;
+
+/// A log f64 axis with ticks at 1, 2 and 5 times the powers of ten in its range (only the
+/// powers when those are many; every digit when they are few).
+pub struct LogTicked {
+    inner: plotters::coord::combinators::LogCoord<f64>,
+    ticks: Vec<f64>,
+}
+
+impl LogTicked {
+    pub fn new(lo: f64, hi: f64) -> LogTicked {
+        LogTicked {
+            inner: (lo..hi).log_scale().into(),
+            ticks: log_ticks(lo, hi),
+        }
+    }
+}
+
+/// The ticks of a log axis over `lo..hi`.
+pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let of = |digits: &[f64]| -> Vec<f64> {
+        let (a, b) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+        (a..=b)
+            .flat_map(|k| digits.iter().map(move |m| m * 10f64.powi(k)))
+            .filter(|v| (lo..=hi).contains(v))
+            .collect()
+    };
+    let t = of(&[1.0, 2.0, 5.0]);
+    if t.len() > 12 {
+        of(&[1.0])
+    } else if t.len() < 4 {
+        of(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+    } else {
+        t
+    }
+}
+
+impl Ranged for LogTicked {
+    type FormatOption = DefaultFormatting;
+    type ValueType = f64;
+    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
+        self.inner.map(value, limit)
+    }
+    fn key_points<H: KeyPointHint>(&self, _: H) -> Vec<f64> {
+        self.ticks.clone()
+    }
+    fn range(&self) -> std::ops::Range<f64> {
+        self.inner.range()
+    }
+}
 
 /// A chart on `area` with a log y axis over `lo..hi`: a linear x axis over `x`, or a log one
 /// when `log_x`; ticks labelled with `number`.
@@ -719,7 +767,7 @@ pub fn log_y<'a, 'b>(
         .margin_left(14)
         .x_label_area_size(50)
         .y_label_area_size(76)
-        .build_cartesian_2d(x, (lo..hi).log_scale())
+        .build_cartesian_2d(x, LogTicked::new(lo, hi))
         .map_err(fail)?;
     chart
         .configure_mesh()
@@ -729,6 +777,7 @@ pub fn log_y<'a, 'b>(
         .label_style(text(TICK))
         .bold_line_style(RGBColor(225, 225, 225))
         .light_line_style(RGBColor(245, 245, 245))
+        .x_label_formatter(&|v| number(*v))
         .y_label_formatter(&|v| number(*v))
         .draw()
         .map_err(fail)?;
@@ -741,13 +790,13 @@ pub fn log_log<'a, 'b>(
     (x0, x1): (f64, f64),
     (y0, y1): (f64, f64),
     (x_desc, y_desc): (&str, &str),
-) -> Result<LogY<'a, 'b, plotters::coord::combinators::LogCoord<f64>>> {
+) -> Result<LogY<'a, 'b, LogTicked>> {
     let mut chart = ChartBuilder::on(area)
         .margin(10)
         .margin_left(14)
         .x_label_area_size(50)
         .y_label_area_size(76)
-        .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+        .build_cartesian_2d(LogTicked::new(x0, x1), LogTicked::new(y0, y1))
         .map_err(fail)?;
     chart
         .configure_mesh()
@@ -871,5 +920,10 @@ mod tests {
         assert_eq!(number(0.0012345), "0.00123");
         assert_eq!(number(123.45), "123");
         assert_eq!(number(1.5), "1.5");
+        assert_eq!(log_ticks(3.0, 150.0), [5.0, 10.0, 20.0, 50.0, 100.0]);
+        assert_eq!(
+            log_ticks(30.0, 90.0),
+            [30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]
+        );
     }
 }

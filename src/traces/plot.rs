@@ -374,16 +374,13 @@ fn about(t: &Traces, frames: &[u32], lines: u32) -> Vec<String> {
         let (blocks, bytes) = t.files.iter().fold((0u64, 0u64), |a, f| {
             (a.0 + f.frame.fetched_blocks, a.1 + f.frame.fetched_bytes)
         });
-        let size = if blocks > 0 {
-            let block = bytes / blocks;
+        let size = bytes.checked_div(blocks).map_or(String::new(), |block| {
             format!(
                 " of {} KiB blocks ({} MiB)",
                 chart::number(block as f64 / 1024.0),
                 chart::number(f64::from(lines) * block as f64 / (1024.0 * 1024.0))
             )
-        } else {
-            String::new()
-        };
+        });
         format!(
             "cache: {lines} line{} per render rank{size}, mapping {}",
             s(lines),

@@ -227,7 +227,11 @@ fn plot_draws_one_rank_one_frame_no_faults() {
     assert!(texts.iter().any(|t| t.text == "rank 2"));
     assert!(texts.iter().any(|t| t.text.contains("(no faults)")));
     assert_eq!(numbers(&panel(&texts, 0), "middle"), [0.0], "one frame");
-    assert_eq!(largest(&numbers(&panel(&texts, 0), "end")), 1.0, "one round");
+    assert_eq!(
+        largest(&numbers(&panel(&texts, 0), "end")),
+        1.0,
+        "one round"
+    );
     plot(&[&none, &"-o", &d.path("none.png")]);
     let png = image::open(d.path("none.png")).unwrap();
     assert!(png.width() >= 1000 && png.height() >= 1000);
@@ -245,7 +249,9 @@ fn plot_draws_one_rank_one_frame_no_faults() {
 fn plot_bins_and_wraps_for_many_ranks_lines_and_frames() {
     let d = TempDir::new("plot-many");
     // 24 render ranks on 5000 lines: the legend wraps, the lines are binned.
-    let many = synthetic(&d, "ranks", 24, 2, 5000, |f, r| vec![(f * 97 + r * 13) % 5000]);
+    let many = synthetic(&d, "ranks", 24, 2, 5000, |f, r| {
+        vec![(f * 97 + r * 13) % 5000]
+    });
     let svg = d.path("ranks.svg");
     plot(&[&many, &"-o", &svg]);
     let texts = svg_texts(&svg);
@@ -265,13 +271,19 @@ fn plot_bins_and_wraps_for_many_ranks_lines_and_frames() {
         .parse()
         .unwrap();
     assert!(keys.iter().all(|t| t.x < width), "inside the picture");
-    assert!(texts.iter().any(|t| t.text.contains("a cell is 1 frames x")));
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.text.contains("a cell is 1 frames x"))
+    );
     // 1500 frames of one rank: more frames than the heat map has pixels across.
     let long = synthetic(&d, "frames", 1, 1500, 4, |f, _| vec![f % 4]);
     plot(&[&long, &"-o", &svg]);
     let texts = svg_texts(&svg);
     assert!(
-        texts.iter().any(|t| t.text.contains("a cell is 2 frames x 1 lines")),
+        texts
+            .iter()
+            .any(|t| t.text.contains("a cell is 2 frames x 1 lines")),
         "{:?}",
         texts.iter().find(|t| t.text.starts_with(TITLES[4]))
     );
@@ -305,13 +317,19 @@ fn plot_format_from_the_name_or_the_flag() {
         &[&dir, &"-o", &out.join("x.svg"), &"--format", &"png"],
         &["x.svg", "--format png", ".svg"],
     );
-    refused(&[&dir, &"-o", &out.join("x.gif")], &["x.gif", "png or .svg"]);
+    refused(
+        &[&dir, &"-o", &out.join("x.gif")],
+        &["x.gif", "png or .svg"],
+    );
     refused(
         &[&dir, &"-o", &out.join("x.png"), &"--format", &"jpg"],
         &["jpg", "png or svg"],
     );
     // A bad directory: its error as `trace summary` gives it, and nothing written.
-    refused(&[&d.path("missing"), &"-o", &out.join("y.png")], &["missing"]);
+    refused(
+        &[&d.path("missing"), &"-o", &out.join("y.png")],
+        &["missing"],
+    );
     // No font for the text: refused, and nothing written.
     let r = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"))
         .args(["trace", "plot"])

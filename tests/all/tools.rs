@@ -571,12 +571,12 @@ fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
     assert!(runs[0]["fps"].as_f64().unwrap() > 0.0);
     assert_eq!(eight.iter().filter(|p| p["source"] == "chapter").count(), 7);
     for (name, w) in [
-        ("figure6.png", 1200),
-        ("figure7.png", 700),
-        ("figure8.png", 700),
+        ("figure6.png", 1400),
+        ("figure7.png", 840),
+        ("figure8.png", 840),
     ] {
         let img = image::open(out.join(name)).unwrap();
-        assert_eq!((img.width(), img.height()), (w, 520), "{name}");
+        assert_eq!((img.width(), img.height()), (w, 640), "{name}");
     }
 }
 
@@ -610,13 +610,28 @@ fn cluster_plot_names_everything_and_ends_axes_at_the_maxima() {
     for w in want {
         assert!(has(w), "no text {w}");
     }
-    assert!(!has("rank 0") && !has("rank 1"), "display and balancer trace no rounds");
+    assert!(
+        !has("rank 0") && !has("rank 1"),
+        "display and balancer trace no rounds"
+    );
     let heading = &texts[0].text;
-    assert!(heading.ends_with("traces"), "the directory's name: {heading}");
-    assert!(texts[1].text.starts_with("5 ranks (display: rank 0, balancer: rank 1, render: ranks 2-4); 3 frames"), "{}", texts[1].text);
+    assert!(
+        heading.ends_with("traces"),
+        "the directory's name: {heading}"
+    );
+    assert!(
+        texts[1].text.starts_with(
+            "5 ranks (display: rank 0, balancer: rank 1, render: ranks 2-4); 3 frames"
+        ),
+        "{}",
+        texts[1].text
+    );
     let t = Traces::read(&traces).unwrap();
-    let render: Vec<&dcrt::traces::RankFrame> =
-        t.files.iter().filter(|f| f.frame.role == "render").collect();
+    let render: Vec<&dcrt::traces::RankFrame> = t
+        .files
+        .iter()
+        .filter(|f| f.frame.role == "render")
+        .collect();
     let most = |v: &dyn Fn(&dcrt::traces::RankFrame) -> f64| {
         render.iter().map(|f| v(f)).fold(0.0, f64::max)
     };
@@ -624,9 +639,16 @@ fn cluster_plot_names_everything_and_ends_axes_at_the_maxima() {
     assert_eq!(largest(&numbers(&panel(&texts, 0), "end")), rounds);
     let mib = most(&|f| f.frame.fetched_bytes as f64 / (1024.0 * 1024.0));
     let drawn = largest(&numbers(&panel(&texts, 1), "end"));
-    assert!(mib > 0.0 && (drawn - mib).abs() <= 0.01 * mib, "{drawn} MiB, not {mib}");
+    assert!(
+        mib > 0.0 && (drawn - mib).abs() <= 0.01 * mib,
+        "{drawn} MiB, not {mib}"
+    );
     let lines = render[0].frame.cache_lines;
-    assert!(texts[2].text.contains(&format!("cache: {lines} lines per render rank")));
+    assert!(
+        texts[2]
+            .text
+            .contains(&format!("cache: {lines} lines per render rank"))
+    );
     let heat = panel(&texts, 4);
     assert_eq!(largest(&numbers(&heat, "end")), f64::from(lines));
     let mut cells: BTreeMap<(u32, u32), u64> = BTreeMap::new();
@@ -638,5 +660,9 @@ fn cluster_plot_names_everything_and_ends_axes_at_the_maxima() {
         }
     }
     let max = cells.values().copied().max().unwrap();
-    assert_eq!(largest(&numbers(&heat, "start")), max as f64, "the colour bar");
+    assert_eq!(
+        largest(&numbers(&heat, "start")),
+        max as f64,
+        "the colour bar"
+    );
 }

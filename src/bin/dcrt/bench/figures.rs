@@ -662,3 +662,77 @@ fn draw_display(f: &Figures, path: &Path) -> Result<()> {
     })?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Figures 6-8 of made-up points draw in `chart`'s look (their numbers come from runs).
+    #[test]
+    fn figures_draw_from_points() {
+        let dir = std::env::temp_dir().join(format!("dcrt-figures-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let rate =
+            |model: &str, cache: &str, source: &'static str, nodes: u32, fps: f64| RatePoint {
+                model: model.into(),
+                cache: cache.into(),
+                source,
+                nodes,
+                ranks: nodes + 1,
+                fps,
+                predicted_fps: None,
+                runs: Vec::new(),
+            };
+        let mut figs = Figures {
+            width: 128,
+            height: 96,
+            triangles: 50_000,
+            frames: 4,
+            ranks: vec![4, 5],
+            caches: vec!["replicated".into(), "1/8".into()],
+            network_mb_s: 1868.0,
+            model_mib: vec![("rm".into(), 2.3)],
+            figure6: Vec::new(),
+            figure7: Vec::new(),
+            figure8: Vec::new(),
+        };
+        for model in ["rm", "assembly"] {
+            for (c, cache) in ["replicated", "1/8"].into_iter().enumerate() {
+                for n in NODES {
+                    let fps = 200.0 / (1.0 + c as f64) * f64::from(n).sqrt();
+                    figs.figure6.push(rate(model, cache, "simulated", n, fps));
+                }
+                figs.figure6
+                    .push(rate(model, cache, "run", 4, 90.0 / (1.0 + c as f64)));
+            }
+            figs.figure6.push(rate(model, "1/8", "chapter", 60, 16.0));
+        }
+        for n in 2..=60 {
+            figs.figure7.push(MemoryPoint {
+                cache: "1/8".into(),
+                source: "model",
+                nodes: n,
+                mib: 2.3 / f64::from(n),
+                fraction: 1.0 / f64::from(n) + 0.125,
+            });
+        }
+        for t in 1..=4 {
+            figs.figure8.push(DisplayPoint {
+                copy_threads: t,
+                source: "run",
+                fps: 40.0 * f64::from(t),
+                ceiling_fps: Some(150.0),
+            });
+        }
+        draw_rates(&figs, &dir.join("figure6.png")).unwrap();
+        draw_memory(&figs, &dir.join("figure7.png")).unwrap();
+        draw_display(&figs, &dir.join("figure8.png")).unwrap();
+        for f in ["figure6.png", "figure7.png", "figure8.png"] {
+            let img = image::open(dir.join(f)).unwrap();
+            assert!(img.width() >= 600 && img.height() >= 600, "{f}");
+        }
+        if std::env::var_os("DCRT_KEEP_FIGURES").is_none() {
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
+    }
+}

@@ -719,7 +719,8 @@ fn plot(points: &[Point], path: &Path) -> Result<()> {
         entries.push(Entry::new(label, grey, Swatch::Mark(m, filled)));
     }
     let rmse = chart::log_range(points.iter().map(|p| p.rmse));
-    let panels: [(&str, &str, fn(&Point) -> f64); 2] = [
+    type Panel = (&'static str, &'static str, fn(&Point) -> f64);
+    let panels: [Panel; 2] = [
         ("RMSE against samples per pixel", "samples per pixel", |p| {
             f64::from(p.spp)
         }),
@@ -759,4 +760,42 @@ fn plot(points: &[Point], path: &Path) -> Result<()> {
         Ok(())
     })?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shading plot of made-up curves draws in `chart`'s look, as PNG and SVG.
+    #[test]
+    fn plot_draws_from_points() {
+        let mut points = Vec::new();
+        for (scene, mode) in [("rm", "ao"), ("rm", "path"), ("assembly", "ao")] {
+            for sampler in ["sobol", "independent", PEER] {
+                for k in 0..6 {
+                    let spp = 1u32 << k;
+                    points.push(Point {
+                        scene: scene.into(),
+                        mode: mode.into(),
+                        sampler: sampler.into(),
+                        spp,
+                        ms: 3.0 * f64::from(spp),
+                        rmse: 0.2 / f64::from(spp).sqrt(),
+                        rel_mse: 0.0,
+                    });
+                }
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("dcrt-shading-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        plot(&points, &dir.join("curves.png")).unwrap();
+        assert!(image::open(dir.join("curves.png")).is_ok());
+        plot(&points, &dir.join("curves.svg")).unwrap();
+        let svg = std::fs::read_to_string(dir.join("curves.svg")).unwrap();
+        assert!(svg.contains("RMSE against samples per pixel") && svg.contains("Sobol&apos;"));
+        assert!(plot(&points, &dir.join("curves.txt")).is_err());
+        if std::env::var_os("DCRT_KEEP_FIGURES").is_none() {
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
+    }
 }
