@@ -1,5 +1,5 @@
 //! The one look of every chart dcrt draws (`dcrt trace plot`, the bench's figures and its
-//! shading plot; docs/ARCHITECTURE.md, Traces): PNG or SVG from the same drawing code (`Backend`),
+//! shading plot; docs/ARCHITECTURE.md, Charts): PNG or SVG from the same drawing code (`Backend`),
 //! written through `files` (nothing on failure); a heading; panels with a title, labelled axes
 //! and ticks; legends that wrap below a panel's title; a colour bar for heat maps. Text is set
 //! in `legend::font`'s family (an SVG names DejaVu Sans, which measured it).
@@ -617,7 +617,7 @@ impl Axis {
         let step = round_step((b - a).max(1.0), n).max(1.0);
         let mut ticks: Vec<f64> = (0..)
             .map(|i| a + f64::from(i) * step)
-            .take_while(|&t| t < b - 0.4 * step)
+            .take_while(|&t| t < b - 0.6 * step)
             .collect();
         ticks.push(b);
         Axis {

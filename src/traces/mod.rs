@@ -1,7 +1,7 @@
 //! Reading and analysing the per-frame traces that `--trace DIR` writes (docs/ARCHITECTURE.md,
 //! Traces; the records in Contracts, Trace records): `read` loads and checks a directory,
 //! `summary` tabulates it per frame and rank, `perfetto` turns it into a timeline, `plot` into a
-//! PNG.
+//! picture (PNG or SVG) in `chart`'s look (Charts).
 
 pub mod perfetto;
 pub mod plot;
