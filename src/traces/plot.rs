@@ -285,7 +285,12 @@ impl Plot {
         }
         let max = counts.iter().copied().max().unwrap_or(0);
         let cell = if per_col > 1 || per_row > 1 {
-            format!("; a cell is {per_col} frames x {per_row} lines")
+            let s = |n: usize| if n == 1 { "" } else { "s" };
+            format!(
+                "; a cell is {per_col} frame{} x {per_row} line{}",
+                s(per_col),
+                s(per_row)
+            )
         } else {
             String::new()
         };
