@@ -372,3 +372,11 @@ pub fn numbered(path: &Path, i: u32, frames: u32) -> std::path::PathBuf {
     let ext = path.extension().and_then(|s| s.to_str()).unwrap_or("png");
     path.with_file_name(format!("{stem}_{i:04}.{ext}"))
 }
+
+/// Writes an image as PNG, atomically (`write_bytes`).
+pub fn write_rgb_png(path: &Path, img: &image::RgbImage) -> Result<()> {
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| crate::error::Error::format(path, None, e.to_string()))?;
+    write_bytes(path, &png)
+}

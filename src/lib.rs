@@ -8,6 +8,7 @@
 
 pub mod blocks;
 pub mod bvh;
+pub mod chart;
 pub mod cluster;
 pub mod colormap;
 pub mod dc;

@@ -4,7 +4,7 @@
 //! Outputs).
 
 use crate::error::{Error as DcrtError, Result};
-use crate::files::write_bytes;
+use crate::files::{write_bytes, write_rgb_png};
 use crate::gpu::frame::Frame;
 use std::path::Path;
 
@@ -60,7 +60,7 @@ pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
 
 /// A PNG of the frame exposed by `exposure` stops.
 pub fn write_png_exposed(path: &Path, frame: &Frame, exposure: f32) -> Result<()> {
-    save_png(path, &to_rgb8_exposed(frame, exposure))
+    write_rgb_png(path, &to_rgb8_exposed(frame, exposure))
 }
 
 /// A PNG of the frame exposed by `exposure` stops, with the colour legend drawn over it when
@@ -75,16 +75,7 @@ pub fn write_png_legend(
     if let Some(l) = legend {
         l.draw(&mut img)?;
     }
-    save_png(path, &img)
-}
-
-/// Writes an 8-bit sRGB image.
-/// Writes an 8-bit sRGB image, encoded in memory and then written with `files::write_atomic`.
-pub fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
-    let mut png = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .map_err(|e| DcrtError::format(path, None, e.to_string()))?;
-    write_bytes(path, &png)
+    write_rgb_png(path, &img)
 }
 
 pub fn write_exr(path: &Path, frame: &Frame, aovs: &[Aov]) -> Result<()> {

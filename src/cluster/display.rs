@@ -268,7 +268,7 @@ fn write_frame(
             if let Some(l) = legend {
                 l.draw(&mut img)?;
             }
-            output::save_png(&png, &img)?;
+            files::write_rgb_png(&png, &img)?;
             Ok(vec![png])
         }
         Wire::Full => {

@@ -19,6 +19,7 @@ mod layout;
 mod limits;
 mod mirror;
 mod outputs;
+mod plot;
 mod prepare;
 mod robust;
 mod scale;

@@ -571,11 +571,98 @@ fn cluster_bench_figures_draws_runs_simulations_and_the_chapters_numbers() {
     assert!(runs[0]["fps"].as_f64().unwrap() > 0.0);
     assert_eq!(eight.iter().filter(|p| p["source"] == "chapter").count(), 7);
     for (name, w) in [
-        ("figure6.png", 1200),
-        ("figure7.png", 700),
-        ("figure8.png", 700),
+        ("figure6.png", 1400),
+        ("figure7.png", 840),
+        ("figure8.png", 840),
     ] {
         let img = image::open(out.join(name)).unwrap();
-        assert_eq!((img.width(), img.height()), (w, 520), "{name}");
+        assert_eq!((img.width(), img.height()), (w, 640), "{name}");
     }
+}
+
+/// A 5-rank run's picture names every panel, axis, rank and phase, and its axes end at the
+/// traces' maxima: rounds, MiB fetched, cache lines, and the colour bar at the most faults of a
+/// line in a frame (every render rank's lines summed).
+#[test]
+fn cluster_plot_names_everything_and_ends_axes_at_the_maxima() {
+    use crate::plot::{TITLES, largest, numbers, panel, svg_texts};
+    let d = TempDir::new("tools-plot");
+    let traces = mpirun_traces(5, 3, &d);
+    let svg = d.path("p.svg");
+    ok(&[&"trace", &"plot", &traces, &"-o", &svg]);
+    let texts = svg_texts(&svg);
+    let has = |w: &str| texts.iter().any(|t| t.text == w);
+    let mut want: Vec<&str> = vec![
+        "frame",
+        "rounds",
+        "fetched (MiB)",
+        "hit rate (hits / lookups)",
+        "share of time",
+        "rank",
+        "cache line",
+        "faults",
+        "rank 2",
+        "rank 3",
+        "rank 4",
+    ];
+    want.extend(dcrt::traces::plot::PHASES);
+    want.extend(&TITLES[..4]);
+    for w in want {
+        assert!(has(w), "no text {w}");
+    }
+    assert!(
+        !has("rank 0") && !has("rank 1"),
+        "display and balancer trace no rounds"
+    );
+    let heading = &texts[0].text;
+    assert!(
+        heading.ends_with("traces"),
+        "the directory's name: {heading}"
+    );
+    assert!(
+        texts[1].text.starts_with(
+            "5 ranks (display: rank 0, balancer: rank 1, render: ranks 2-4); 3 frames"
+        ),
+        "{}",
+        texts[1].text
+    );
+    let t = Traces::read(&traces).unwrap();
+    let render: Vec<&dcrt::traces::RankFrame> = t
+        .files
+        .iter()
+        .filter(|f| f.frame.role == "render")
+        .collect();
+    let most = |v: &dyn Fn(&dcrt::traces::RankFrame) -> f64| {
+        render.iter().map(|f| v(f)).fold(0.0, f64::max)
+    };
+    let rounds = most(&|f| f64::from(f.frame.rounds));
+    assert_eq!(largest(&numbers(&panel(&texts, 0), "end")), rounds);
+    let mib = most(&|f| f.frame.fetched_bytes as f64 / (1024.0 * 1024.0));
+    let drawn = largest(&numbers(&panel(&texts, 1), "end"));
+    assert!(
+        mib > 0.0 && (drawn - mib).abs() <= 0.01 * mib,
+        "{drawn} MiB, not {mib}"
+    );
+    let lines = render[0].frame.cache_lines;
+    assert!(
+        texts[2]
+            .text
+            .contains(&format!("cache: {lines} lines per render rank"))
+    );
+    let heat = panel(&texts, 4);
+    assert_eq!(largest(&numbers(&heat, "end")), f64::from(lines));
+    let mut cells: BTreeMap<(u32, u32), u64> = BTreeMap::new();
+    for f in &render {
+        for r in &f.rounds {
+            for x in &r.faults {
+                *cells.entry((f.frame.frame, x.line)).or_default() += 1;
+            }
+        }
+    }
+    let max = cells.values().copied().max().unwrap();
+    assert_eq!(
+        largest(&numbers(&heat, "start")),
+        max as f64,
+        "the colour bar"
+    );
 }

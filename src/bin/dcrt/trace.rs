@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
+use dcrt::chart::Format;
 use dcrt::traces::{Traces, perfetto, plot, summary::RunSummary};
 use std::path::PathBuf;
 
@@ -27,12 +28,21 @@ enum Tool {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// PNG: rounds, MiB fetched and hit rate per frame and rank, phase shares per rank, and a
-    /// heat map of cache-line faults over frames.
+    /// One picture of the run: a heading (the directory's name, ranks and roles, frames, cache
+    /// lines and mapping), rounds, MiB fetched and hit rate per frame (a line per rank), each
+    /// phase's share of a rank's time, and a heat map of cache-line faults over frames with its
+    /// colour bar; titled panels, labelled axes, legends. Needs a TrueType font (DejaVu Sans or
+    /// DCRT_FONT).
     Plot {
+        /// Directory written by `--trace`.
         dir: PathBuf,
+        /// The picture: .png or .svg (or any name with --format).
         #[arg(short, long)]
         output: PathBuf,
+        /// png or svg; by default the output's extension says. A flag that contradicts the
+        /// extension is an error.
+        #[arg(long)]
+        format: Option<Format>,
     },
 }
 
@@ -51,7 +61,14 @@ pub fn trace(a: TraceArgs) -> Result<()> {
             let text = serde_json::to_string(&perfetto::timeline(&t))?;
             std::fs::write(&output, text).with_context(|| output.display().to_string())?;
         }
-        Tool::Plot { dir, output } => plot::draw(&Traces::read(&dir)?, &output)?,
+        Tool::Plot {
+            dir,
+            output,
+            format,
+        } => {
+            let format = Format::of(&output, format)?;
+            plot::draw(&Traces::read(&dir)?, &output, format)?;
+        }
     }
     Ok(())
 }

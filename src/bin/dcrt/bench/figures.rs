@@ -14,6 +14,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use dcrt::blocks::Format;
 use dcrt::blocks::ranks::Ranks;
+use dcrt::chart::{self, Area, Entry, Mark, Swatch};
 use dcrt::cluster::Roles;
 use dcrt::dc::CacheSize;
 use dcrt::progress::{Progress, say};
@@ -21,7 +22,6 @@ use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
 use dcrt::simulate::{ClusterModel, Sharing, simulate};
 use dcrt::traces::Traces;
-use dcrt::traces::plot::PALETTE;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -175,7 +175,8 @@ pub fn bench(a: &FiguresArgs) -> Result<()> {
         caches.push(c.clone());
     }
     let format = format_of(&a.build)?;
-    let font = dcrt::legend::font()?.to_string();
+    // Every figure needs a font: say so before the hours of runs, not after.
+    chart::font()?;
     let runs = out.join("runs");
     std::fs::create_dir_all(&runs).with_context(|| format!("{}: cannot create", runs.display()))?;
     let exe = std::env::current_exe().context("the path of this dcrt")?;
@@ -387,9 +388,9 @@ pub fn bench(a: &FiguresArgs) -> Result<()> {
     }
     let json = out.join("figures.json");
     dcrt::files::write_bytes(&json, serde_json::to_string_pretty(&figs)?.as_bytes())?;
-    draw_rates(&figs, &out.join("figure6.png"), &font)?;
-    draw_memory(&figs, &out.join("figure7.png"), &font)?;
-    draw_display(&figs, &out.join("figure8.png"), &font)?;
+    draw_rates(&figs, &out.join("figure6.png"))?;
+    draw_memory(&figs, &out.join("figure7.png"))?;
+    draw_display(&figs, &out.join("figure8.png"))?;
     println!(
         "wrote {}, figure6.png, figure7.png, figure8.png in {}",
         json.display(),
@@ -487,152 +488,79 @@ fn drawn_caches<'a>(f: &Figures, all: impl Iterator<Item = &'a String>) -> Vec<S
     out
 }
 
-fn colour(i: usize) -> RGBColor {
-    let [r, g, b] = PALETTE[i % PALETTE.len()];
-    RGBColor(r, g, b)
-}
+const W: u32 = 1400;
+const H: u32 = 640;
+/// The footnote's band at the bottom.
+const FOOT: u32 = 34;
 
-const W: u32 = 1200;
-const H: u32 = 520;
+type Chart<'a, 'b> = chart::LogY<'a, 'b, plotters::coord::types::RangedCoordf64>;
 
-/// Draws into an RGB buffer and saves it with `image`.
-fn save(
-    path: &Path,
-    (w, h): (u32, u32),
-    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> Result<()>,
-) -> Result<()> {
-    let mut buf = vec![0u8; (w * h * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_error)?;
-        draw(root.clone())?;
-        root.present().map_err(plot_error)?;
-    }
-    image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| anyhow!("{}: picture buffer of the wrong size", path.display()))?
-        .save(path)
-        .with_context(|| format!("{}: cannot write", path.display()))
-}
-
-/// A log axis's tick without float noise: two significant digits.
-fn tick(v: f64) -> String {
-    if v >= 10.0 {
-        format!("{v:.0}")
-    } else if v >= 1.0 {
-        format!("{v:.1}")
-    } else {
-        format!("{v:.2}")
-    }
-}
-
-fn plot_error<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow!("drawing a figure: {e:?}")
-}
-
-/// The range of a log axis covering `values`, a factor 1.5 of room each side.
-fn log_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(v), hi.max(v)));
-    if lo > hi {
-        (0.1, 10.0)
-    } else {
-        (lo / 1.5, hi * 1.5)
-    }
-}
-
-type Area<'b> = DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>;
-type LogChart<'a, 'b> = ChartContext<
-    'a,
-    BitMapBackend<'b>,
-    Cartesian2d<
-        plotters::coord::types::RangedCoordf64,
-        plotters::coord::combinators::LogCoord<f64>,
-    >,
->;
-
-/// A chart on `area` with a linear x axis over `x` and a log y axis over `y`, mesh drawn.
-fn log_chart<'a, 'b>(
-    area: &'a Area<'b>,
-    caption: &str,
-    font: &str,
-    x: std::ops::Range<f64>,
-    (lo, hi): (f64, f64),
-    (x_desc, y_desc): (&str, &str),
-) -> Result<LogChart<'a, 'b>> {
-    let mut chart = ChartBuilder::on(area)
-        .caption(caption, (font, 16))
-        .margin(12)
-        .x_label_area_size(36)
-        .y_label_area_size(56)
-        .build_cartesian_2d(x, (lo..hi).log_scale())
-        .map_err(plot_error)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .label_style((font, 12))
-        .y_label_formatter(&|v| tick(*v))
-        .draw()
-        .map_err(plot_error)?;
-    Ok(chart)
-}
-
-/// One series in colour `c`: a line through `line`, in the legend as `label`; dots at `runs`
-/// and triangles at `chapter`.
+/// One series in colour `c`: a line through `line`, dots at `runs` and triangles at `chapter`.
 fn draw_series(
-    chart: &mut LogChart,
+    chart: &mut Chart,
     c: RGBColor,
-    label: &str,
     line: Vec<(f64, f64)>,
     runs: Vec<(f64, f64)>,
     chapter: Vec<(f64, f64)>,
-) -> Result<()> {
+) -> dcrt::Result<()> {
     chart
         .draw_series(LineSeries::new(line, c.stroke_width(2)))
-        .map_err(plot_error)?
-        .label(label)
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+        .map_err(chart::fail)?;
     chart
-        .draw_series(runs.into_iter().map(|p| Circle::new(p, 4, c.filled())))
-        .map_err(plot_error)?;
+        .draw_series(
+            runs.into_iter()
+                .map(|p| chart::marker(Mark::Circle, p, 9, c, true)),
+        )
+        .map_err(chart::fail)?;
     chart
         .draw_series(
             chapter
                 .into_iter()
-                .map(|p| TriangleMarker::new(p, 7, c.filled())),
+                .map(|p| chart::marker(Mark::Triangle, p, 12, c, true)),
         )
-        .map_err(plot_error)?;
+        .map_err(chart::fail)?;
     Ok(())
 }
 
-fn draw_legend<'a, 'b: 'a>(
-    chart: &mut LogChart<'a, 'b>,
-    font: &str,
-    at: SeriesLabelPosition,
-) -> Result<()> {
-    chart
-        .configure_series_labels()
-        .label_font((font, 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(at)
-        .draw()
-        .map_err(plot_error)
+/// The legend of a figure: a colour per series, then what lines, dots and triangles are.
+fn keys(series: &[String], line: &str) -> Vec<Entry> {
+    let grey = RGBColor(90, 90, 90);
+    let mut out: Vec<Entry> = series
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Entry::new(s.clone(), chart::colour(i), Swatch::Box))
+        .collect();
+    out.push(Entry::new(line, grey, Swatch::Line(None)));
+    out.push(Entry::new(
+        "run here",
+        grey,
+        Swatch::Mark(Mark::Circle, true),
+    ));
+    out.push(Entry::new(
+        "the chapter",
+        grey,
+        Swatch::Mark(Mark::Triangle, true),
+    ));
+    out
 }
 
-/// The figure's footnote, below its axes.
-fn footnote(root: &Area, text: &str, font: &str) -> Result<()> {
-    root.draw(&Text::new(text, (12, H as i32 - 16), (font, 12)))
-        .map_err(plot_error)
+/// The figure's footnote, in the band below its panels.
+fn footnote(root: &Area, text: &str) -> dcrt::Result<()> {
+    root.draw(&Text::new(
+        text.to_string(),
+        (12, H as i32 - FOOT as i32 + 8),
+        chart::text(chart::TICK),
+    ))
+    .map_err(chart::fail)
 }
 
 /// Figure 6: frame rate against nodes, one panel per model, a colour per cache; lines through
 /// the simulated points, dots for runs here, triangles for the chapter's.
-fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
-    save(path, (W, H), |root| {
-        let (charts, _) = root.split_vertically(H - 28);
+fn draw_rates(f: &Figures, path: &Path) -> Result<()> {
+    chart::save(path, chart::Format::Png, (W, H), |root| {
+        let (charts, _) = root.split_vertically(H - FOOT);
         let panels = charts.split_evenly((1, 2));
+        let caches = drawn_caches(f, f.figure6.iter().map(|p| &p.cache));
         for (panel, g) in panels.iter().zip(MODELS) {
             let name = g.name();
             let pts: Vec<&RatePoint> = f.figure6.iter().filter(|p| p.model == name).collect();
@@ -646,13 +574,11 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
                 f.width,
                 f.height
             );
-            let range = log_range(pts.iter().map(|p| p.fps));
+            let area = chart::titled_with_legend(panel, &title, &keys(&caches, "simulated"))?;
+            let range = chart::log_range(pts.iter().map(|p| p.fps));
             let axes = ("nodes (one for display + balancer)", "frames per second");
-            let mut chart = log_chart(panel, &title, font, 0.0..62.0, range, axes)?;
-            for (i, cache) in drawn_caches(f, f.figure6.iter().map(|p| &p.cache))
-                .iter()
-                .enumerate()
-            {
+            let mut c = chart::log_y(&area, 0.0..62.0, range, axes)?;
+            for (i, cache) in caches.iter().enumerate() {
                 let of = |source: &str| -> Vec<(f64, f64)> {
                     pts.iter()
                         .filter(|p| p.cache == *cache && p.source == source)
@@ -660,35 +586,34 @@ fn draw_rates(f: &Figures, path: &Path, font: &str) -> Result<()> {
                         .collect()
                 };
                 let (line, runs, chapter) = (of("simulated"), of("run"), of("chapter"));
-                draw_series(&mut chart, colour(i), cache, line, runs, chapter)?;
+                draw_series(&mut c, chart::colour(i), line, runs, chapter)?;
             }
-            draw_legend(&mut chart, font, SeriesLabelPosition::LowerRight)?;
         }
         let note = format!(
             "lines: simulated on {:.0} MB/s + a fault round's median fetch here, a render rank per node; dots: runs here (median of --runs); triangles: the chapter (1920x1080)",
             f.network_mb_s
         );
-        footnote(&root, &note, font)
-    })
+        footnote(root, &note)
+    })?;
+    Ok(())
 }
 
 /// Figure 7: memory per node of rm against nodes, as a share of the replicated model.
-fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
-    save(path, (W / 2 + 100, H), |root| {
+fn draw_memory(f: &Figures, path: &Path) -> Result<()> {
+    chart::save(path, chart::Format::Png, (W / 2 + 140, H), |root| {
         let rm_mib = f
             .model_mib
             .iter()
             .find(|m| m.0 == "rm")
             .map_or(0.0, |m| m.1);
-        let (area, _) = root.split_vertically(H - 28);
+        let (area, _) = root.split_vertically(H - FOOT);
+        let caches = drawn_caches(f, f.figure7.iter().map(|p| &p.cache));
         let title = format!("Figure 7, rm: memory per node ({rm_mib:.1} MiB model = 1)");
-        let range = log_range(f.figure7.iter().map(|p| p.fraction));
+        let area = chart::titled_with_legend(&area, &title, &keys(&caches, "model"))?;
+        let range = chart::log_range(f.figure7.iter().map(|p| p.fraction));
         let axes = ("nodes", "blocks + cache per node / model");
-        let mut chart = log_chart(&area, &title, font, 0.0..62.0, range, axes)?;
-        for (i, cache) in drawn_caches(f, f.figure7.iter().map(|p| &p.cache))
-            .iter()
-            .enumerate()
-        {
+        let mut c = chart::log_y(&area, 0.0..62.0, range, axes)?;
+        for (i, cache) in caches.iter().enumerate() {
             let of = |source: &str| -> Vec<(f64, f64)> {
                 f.figure7
                     .iter()
@@ -697,55 +622,142 @@ fn draw_memory(f: &Figures, path: &Path, font: &str) -> Result<()> {
                     .collect()
             };
             let (line, runs, chapter) = (of("model"), of("run"), of("chapter"));
-            draw_series(&mut chart, colour(i), cache, line, runs, chapter)?;
+            draw_series(&mut c, chart::colour(i), line, runs, chapter)?;
         }
-        draw_legend(&mut chart, font, SeriesLabelPosition::MiddleRight)?;
         footnote(
-            &root,
+            root,
             "lines: owned blocks + root + cache lines; dots: runs here; triangles: the chapter (RM, 21,326 MB)",
-            font,
         )
-    })
+    })?;
+    Ok(())
 }
 
 /// Figure 8: the display's frame rate (1920x1080) against copy threads.
-fn draw_display(f: &Figures, path: &Path, font: &str) -> Result<()> {
-    save(path, (W / 2 + 100, H), |root| {
-        let range = log_range(
+fn draw_display(f: &Figures, path: &Path) -> Result<()> {
+    chart::save(path, chart::Format::Png, (W / 2 + 140, H), |root| {
+        let range = chart::log_range(
             f.figure8
                 .iter()
                 .flat_map(|p| [Some(p.fps), p.ceiling_fps])
                 .flatten(),
         );
-        let (area, _) = root.split_vertically(H - 28);
+        let (area, _) = root.split_vertically(H - FOOT);
         let title = "Figure 8: display frames/s (1920x1080) against copy threads";
+        let series = [("run", "runs here"), ("chapter", "the chapter")];
+        let mut entries: Vec<Entry> = series
+            .iter()
+            .enumerate()
+            .map(|(i, s)| Entry::new(s.1, chart::colour(i), Swatch::Line(Some(Mark::Circle))))
+            .collect();
+        entries.push(Entry::new(
+            "the link's limit",
+            RGBColor(90, 90, 90),
+            Swatch::Mark(Mark::Cross, false),
+        ));
+        let area = chart::titled_with_legend(&area, title, &entries)?;
         let axes = ("copy threads", "frames per second");
-        let mut chart = log_chart(&area, title, font, 0.5..7.5, range, axes)?;
-        let series = [
-            ("run", "runs here", colour(0)),
-            ("chapter", "chapter", colour(1)),
-        ];
-        for (source, label, c) in series {
+        let mut c = chart::log_y(&area, 0.5..7.5, range, axes)?;
+        for (i, (source, _)) in series.into_iter().enumerate() {
+            let colour = chart::colour(i);
             let pts: Vec<&DisplayPoint> = f.figure8.iter().filter(|p| p.source == source).collect();
             let fps: Vec<(f64, f64)> = pts
                 .iter()
                 .map(|p| (f64::from(p.copy_threads), p.fps))
                 .collect();
-            draw_series(&mut chart, c, label, fps.clone(), fps, Vec::new())?;
-            chart
-                .draw_series(pts.iter().filter_map(|p| {
-                    p.ceiling_fps
-                        .map(|y| Cross::new((f64::from(p.copy_threads), y), 5, c.stroke_width(2)))
-                }))
-                .map_err(plot_error)?;
+            draw_series(&mut c, colour, fps.clone(), fps, Vec::new())?;
+            c.draw_series(pts.iter().filter_map(|p| {
+                p.ceiling_fps.map(|y| {
+                    chart::marker(
+                        Mark::Cross,
+                        (f64::from(p.copy_threads), y),
+                        10,
+                        colour,
+                        false,
+                    )
+                })
+            }))
+            .map_err(chart::fail)?;
         }
-        draw_legend(&mut chart, font, SeriesLabelPosition::LowerRight)?;
         footnote(
-            &root,
+            root,
             "crosses: the link's limit (runs: the job's MPI bandwidth / 3 B a pixel; chapter: 127 fps)",
-            font,
         )
-    })
+    })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Figures 6-8 of made-up points draw in `chart`'s look (their numbers come from runs).
+    #[test]
+    fn figures_draw_from_points() {
+        let dir = std::env::temp_dir().join(format!("dcrt-figures-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let rate =
+            |model: &str, cache: &str, source: &'static str, nodes: u32, fps: f64| RatePoint {
+                model: model.into(),
+                cache: cache.into(),
+                source,
+                nodes,
+                ranks: nodes + 1,
+                fps,
+                predicted_fps: None,
+                runs: Vec::new(),
+            };
+        let mut figs = Figures {
+            width: 128,
+            height: 96,
+            triangles: 50_000,
+            frames: 4,
+            ranks: vec![4, 5],
+            caches: vec!["replicated".into(), "1/8".into()],
+            network_mb_s: 1868.0,
+            model_mib: vec![("rm".into(), 2.3)],
+            figure6: Vec::new(),
+            figure7: Vec::new(),
+            figure8: Vec::new(),
+        };
+        for model in ["rm", "assembly"] {
+            for (c, cache) in ["replicated", "1/8"].into_iter().enumerate() {
+                for n in NODES {
+                    let fps = 200.0 / (1.0 + c as f64) * f64::from(n).sqrt();
+                    figs.figure6.push(rate(model, cache, "simulated", n, fps));
+                }
+                figs.figure6
+                    .push(rate(model, cache, "run", 4, 90.0 / (1.0 + c as f64)));
+            }
+            figs.figure6.push(rate(model, "1/8", "chapter", 60, 16.0));
+        }
+        for n in 2..=60 {
+            figs.figure7.push(MemoryPoint {
+                cache: "1/8".into(),
+                source: "model",
+                nodes: n,
+                mib: 2.3 / f64::from(n),
+                fraction: 1.0 / f64::from(n) + 0.125,
+            });
+        }
+        for t in 1..=4 {
+            figs.figure8.push(DisplayPoint {
+                copy_threads: t,
+                source: "run",
+                fps: 40.0 * f64::from(t),
+                ceiling_fps: Some(150.0),
+            });
+        }
+        draw_rates(&figs, &dir.join("figure6.png")).unwrap();
+        draw_memory(&figs, &dir.join("figure7.png")).unwrap();
+        draw_display(&figs, &dir.join("figure8.png")).unwrap();
+        for f in ["figure6.png", "figure7.png", "figure8.png"] {
+            let img = image::open(dir.join(f)).unwrap();
+            assert!(img.width() >= 600 && img.height() >= 600, "{f}");
+        }
+        if std::env::var_os("DCRT_KEEP_FIGURES").is_none() {
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
+    }
 }
 
 #[cfg(test)]

@@ -241,6 +241,11 @@ pub fn bench(a: &ShadingArgs) -> Result<()> {
 }
 
 fn run(gpu: &Gpu, a: &ShadingArgs) -> Result<()> {
+    // A plot that cannot be drawn is refused before the renders, not after.
+    if let Some(p) = a.plot.as_deref() {
+        dcrt::chart::Format::of(p, None)?;
+        dcrt::chart::font()?;
+    }
     let (w, h) = (a.width, a.height);
     // AO with few rays per hit, so that spp, not rays, carry the convergence.
     let (ao_rays, max_depth) = (4u32, 3u32);
@@ -735,113 +740,111 @@ fn print_peer(report: &Report) {
     }
 }
 
-/// RMSE against spp (left) and against time (right), log-log, one colour per scene and mode:
-/// rm/ao red, rm/path orange, assembly/ao blue, assembly/path cyan; the Sobol' sampler with
-/// filled squares, the independent one in a lighter shade with hollow squares, the peer (path
-/// only) in a darker shade with crosses. Grid lines at
-/// powers of 10 (error) and 2 (spp) or 10 (ms).
+/// RMSE against spp (left) and against time (right), log-log, in `chart`'s look: a colour per
+/// scene and mode; the Sobol' sampler with filled squares on a solid line, the independent one
+/// with hollow squares, the peer (path only) with crosses. PNG or SVG by the name's extension.
 fn plot(points: &[Point], path: &Path) -> Result<()> {
-    use image::{Rgb, RgbImage};
-    let (pw, ph, m) = (400u32, 300u32, 20u32);
-    let mut img = RgbImage::from_pixel(2 * pw, ph, Rgb([255, 255, 255]));
+    use dcrt::chart::{self, Entry, Mark, Swatch};
+    use plotters::prelude::*;
+    let format = chart::Format::of(path, None)?;
     let series = [
-        ("rm", "ao", Rgb([220, 30, 30])),
-        ("rm", "path", Rgb([240, 150, 0])),
-        ("assembly", "ao", Rgb([30, 60, 220])),
-        ("assembly", "path", Rgb([0, 180, 200])),
+        ("rm", "ao"),
+        ("rm", "path"),
+        ("assembly", "ao"),
+        ("assembly", "path"),
     ];
-    let ys: Vec<f64> = points.iter().map(|p| p.rmse.max(1e-6).log10()).collect();
-    let (y0, y1) = (
-        ys.iter().copied().fold(f64::INFINITY, f64::min).floor(),
-        ys.iter().copied().fold(f64::NEG_INFINITY, f64::max).ceil(),
-    );
-    for panel in 0..2u32 {
-        let xv = |p: &Point| {
-            if panel == 0 {
-                f64::from(p.spp).log2()
-            } else {
-                p.ms.max(1e-3).log10()
-            }
-        };
-        let xs: Vec<f64> = points.iter().map(xv).collect();
-        let (x0, x1) = (
-            xs.iter().copied().fold(f64::INFINITY, f64::min).floor(),
-            xs.iter()
-                .copied()
-                .fold(f64::NEG_INFINITY, f64::max)
-                .ceil()
-                .max(1.0),
-        );
-        let px = |x: f64| {
-            panel * pw + m + ((x - x0) / (x1 - x0).max(1e-9) * f64::from(pw - 2 * m)) as u32
-        };
-        let py = |y: f64| ph - m - ((y - y0) / (y1 - y0).max(1e-9) * f64::from(ph - 2 * m)) as u32;
-        let grey = Rgb([200, 200, 200]);
-        let mut gx = x0;
-        while gx <= x1 + 1e-9 {
-            for y in m..=ph - m {
-                img.put_pixel(px(gx).min(2 * pw - 1), y, grey);
-            }
-            gx += 1.0;
-        }
-        let mut gy = y0;
-        while gy <= y1 + 1e-9 {
-            for x in panel * pw + m..=(panel + 1) * pw - m {
-                img.put_pixel(x, py(gy).min(ph - 1), grey);
-            }
-            gy += 1.0;
-        }
-        for ((scene, mode, full), sampler) in series
-            .into_iter()
-            .flat_map(|s| ["sobol", "independent", PEER].map(|m| (s, m)))
-        {
-            let hollow = sampler == "independent";
-            let cross = sampler == PEER;
-            let c = if hollow {
-                Rgb(full.0.map(|v| v / 2 + 128))
-            } else if cross {
-                Rgb(full.0.map(|v| v / 2))
-            } else {
-                full
-            };
-            let pts: Vec<(u32, u32)> = points
-                .iter()
-                .filter(|p| p.scene == scene && p.mode == mode && p.sampler == sampler)
-                .map(|p| (px(xv(p)), py(p.rmse.max(1e-6).log10())))
-                .collect();
-            for w in pts.windows(2) {
-                line(&mut img, w[0], w[1], c);
-            }
-            for &(x, y) in &pts {
-                for dx in 0..5u32 {
-                    for dy in 0..5u32 {
-                        if hollow && (1..4).contains(&dx) && (1..4).contains(&dy) {
-                            continue;
-                        }
-                        if cross && dx != dy && dx != 4 - dy {
-                            continue;
-                        }
-                        let (xx, yy) = ((x + dx).saturating_sub(2), (y + dy).saturating_sub(2));
-                        if xx < 2 * pw && yy < ph {
-                            img.put_pixel(xx, yy, c);
-                        }
-                    }
+    let samplers = [
+        ("sobol", "Sobol'", Mark::Square, true),
+        ("independent", "independent", Mark::Square, false),
+        (PEER, PEER, Mark::Cross, false),
+    ];
+    let grey = RGBColor(90, 90, 90);
+    let mut entries: Vec<Entry> = series
+        .iter()
+        .enumerate()
+        .map(|(i, (s, m))| Entry::new(format!("{s} {m}"), chart::colour(i), Swatch::Box))
+        .collect();
+    for (_, label, m, filled) in samplers {
+        entries.push(Entry::new(label, grey, Swatch::Mark(m, filled)));
+    }
+    let rmse = chart::log_range(points.iter().map(|p| p.rmse));
+    type Panel = (&'static str, &'static str, fn(&Point) -> f64);
+    let panels: [Panel; 2] = [
+        ("RMSE against samples per pixel", "samples per pixel", |p| {
+            f64::from(p.spp)
+        }),
+        ("RMSE against time", "time (ms)", |p| p.ms),
+    ];
+    chart::save(path, format, (1400, 620), |root| {
+        let root =
+            chart::titled_with_legend(root, "Shading: error against the reference", &entries)?;
+        for (area, (title, x_desc, x)) in root.split_evenly((1, 2)).iter().zip(panels) {
+            let area = chart::titled(area, title)?;
+            let xr = chart::log_range(points.iter().map(x));
+            let mut c = chart::log_log(&area, xr, rmse, (x_desc, "RMSE"))?;
+            for (i, (scene, mode)) in series.iter().enumerate() {
+                for (sampler, _, m, filled) in samplers {
+                    let pts: Vec<(f64, f64)> = points
+                        .iter()
+                        .filter(|p| p.scene == *scene && p.mode == *mode && p.sampler == sampler)
+                        .filter(|p| p.rmse > 0.0 && x(p) > 0.0)
+                        .map(|p| (x(p), p.rmse))
+                        .collect();
+                    let colour = chart::colour(i);
+                    let line = if filled {
+                        colour.stroke_width(2)
+                    } else {
+                        colour.mix(0.6).stroke_width(1)
+                    };
+                    c.draw_series(LineSeries::new(pts.clone(), line))
+                        .map_err(chart::fail)?;
+                    c.draw_series(
+                        pts.into_iter()
+                            .map(|p| chart::marker(m, p, 9, colour, filled)),
+                    )
+                    .map_err(chart::fail)?;
                 }
             }
         }
-    }
-    img.save(path)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        Ok(())
+    })?;
+    Ok(())
 }
 
-fn line(img: &mut image::RgbImage, a: (u32, u32), b: (u32, u32), c: image::Rgb<u8>) {
-    let n = (a.0.abs_diff(b.0)).max(a.1.abs_diff(b.1)).max(1);
-    for i in 0..=n {
-        let t = f64::from(i) / f64::from(n);
-        let x = (f64::from(a.0) + t * (f64::from(b.0) - f64::from(a.0))).round() as u32;
-        let y = (f64::from(a.1) + t * (f64::from(b.1) - f64::from(a.1))).round() as u32;
-        if x < img.width() && y < img.height() {
-            img.put_pixel(x, y, c);
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shading plot of made-up curves draws in `chart`'s look, as PNG and SVG.
+    #[test]
+    fn plot_draws_from_points() {
+        let mut points = Vec::new();
+        for (scene, mode) in [("rm", "ao"), ("rm", "path"), ("assembly", "ao")] {
+            for sampler in ["sobol", "independent", PEER] {
+                for k in 0..6 {
+                    let spp = 1u32 << k;
+                    points.push(Point {
+                        scene: scene.into(),
+                        mode: mode.into(),
+                        sampler: sampler.into(),
+                        spp,
+                        ms: 3.0 * f64::from(spp),
+                        rmse: 0.2 / f64::from(spp).sqrt(),
+                        rel_mse: 0.0,
+                    });
+                }
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("dcrt-shading-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        plot(&points, &dir.join("curves.png")).unwrap();
+        assert!(image::open(dir.join("curves.png")).is_ok());
+        plot(&points, &dir.join("curves.svg")).unwrap();
+        let svg = std::fs::read_to_string(dir.join("curves.svg")).unwrap();
+        assert!(svg.contains("RMSE against samples per pixel") && svg.contains("Sobol&apos;"));
+        assert!(plot(&points, &dir.join("curves.txt")).is_err());
+        if std::env::var_os("DCRT_KEEP_FIGURES").is_none() {
+            std::fs::remove_dir_all(&dir).unwrap();
         }
     }
 }
