@@ -145,19 +145,52 @@ pub fn listing(dir: &Path) -> Vec<String> {
     v
 }
 
-/// `dcrt ARGS` under `ulimit -f BLOCKS` with SIGXFSZ ignored: writes past the limit fail with
-/// EFBIG, as on a full filesystem.
-pub fn limited(blocks: u32, args: &[&dyn AsRef<std::ffi::OsStr>]) -> std::process::Output {
-    let mut cmd = std::process::Command::new("bash");
-    cmd.arg("-c")
-        .arg(format!(
-            "ulimit -f {blocks}; trap '' XFSZ; exec \"$0\" \"$@\""
-        ))
+/// `dcrt ARGS` with `dir` on a full file system: in a private mount namespace (`unshare -m`,
+/// as root), `dir`'s files go onto a tmpfs mounted over it, all but `kib` KiB of its space is
+/// taken, dcrt runs there (writes past the space fail with ENOSPC), and afterwards what dcrt
+/// left replaces `dir`'s files, so that the caller sees the outcome in `dir`. (A file size limit,
+/// `ulimit -f`, would also stop the GPU driver's own memory files.)
+pub fn on_full_disk(
+    dir: &Path,
+    kib: u32,
+    args: &[&dyn AsRef<std::ffi::OsStr>],
+) -> std::process::Output {
+    const SCRIPT: &str = r#"set -eu
+dir=$1; kib=$2; shift 2
+keep=$(mktemp -d)
+cp -a "$dir"/. "$keep"/
+mount -t tmpfs -o size=32m dcrt-full "$dir"
+cp -a "$keep"/. "$dir"/
+dd if=/dev/zero of="$dir/.fill" bs=64k 2>/dev/null || true
+[ "$kib" -eq 0 ] || truncate -s -"$kib"K "$dir/.fill"
+set +e
+"$@"; rc=$?
+set -e
+rm -f "$dir/.fill"
+find "$keep" -mindepth 1 -delete
+cp -a "$dir"/. "$keep"/
+umount "$dir"
+find "$dir" -mindepth 1 -delete
+cp -a "$keep"/. "$dir"/
+rm -rf "$keep"
+exit $rc
+"#;
+    let mut cmd = std::process::Command::new("unshare");
+    cmd.args(["-m", "bash", "-c", SCRIPT, "full-disk"])
+        .arg(dir)
+        .arg(kib.to_string())
         .arg(env!("CARGO_BIN_EXE_dcrt"));
     for a in args {
         cmd.arg(a);
     }
-    cmd.output().unwrap()
+    let out = cmd.output().unwrap();
+    // The script's own failures (no permission to mount) are not dcrt's.
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("unshare:") && !err.contains("mount:"),
+        "the full-disk harness failed: {err}"
+    );
+    out
 }
 
 /// Asserts that two frames are bit-identical, naming the first pixel that is not.

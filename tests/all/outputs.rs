@@ -138,15 +138,15 @@ fn a_full_filesystem_fails_the_run_and_keeps_the_old_files() {
     let (d, s) = setup("out-full");
     let png = d.path("out.png");
     std::fs::write(&png, b"old").unwrap();
-    let r = limited(0, &[&"render", &s, &"-o", &png]);
+    let r = on_full_disk(&d.0, 0, &[&"render", &s, &"-o", &png]);
     let err = String::from_utf8_lossy(&r.stderr);
     assert_eq!(r.status.code(), Some(1), "{err}");
     assert!(err.contains("out.png") && !err.contains("wrote"), "{err}");
     assert_eq!(std::fs::read(&png).unwrap(), b"old", "the old PNG stays");
-    let r = limited(0, &[&"render", &s, &"-o", &png, &"--frames", &"3"]);
+    let r = on_full_disk(&d.0, 0, &[&"render", &s, &"-o", &png, &"--frames", &"3"]);
     assert_eq!(r.status.code(), Some(1));
     let dcb = d.path("m.dcb");
-    let r = limited(0, &[&"prepare", &s, &"-o", &dcb]);
+    let r = on_full_disk(&d.0, 0, &[&"prepare", &s, &"-o", &dcb]);
     assert_eq!(
         r.status.code(),
         Some(1),
@@ -165,7 +165,8 @@ fn a_full_filesystem_fails_the_run_and_keeps_the_old_files() {
         "big.toml",
         SCENE.replace("width = 24\nheight = 16", "width = 64\nheight = 64"),
     );
-    let r = limited(
+    let r = on_full_disk(
+        &d.0,
         4,
         &[
             &"render",

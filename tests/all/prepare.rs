@@ -279,15 +279,16 @@ fn a_full_disk_leaves_no_block_file_and_no_temporary_files() {
     std::fs::write(&dcb, b"old").unwrap();
     // Room for some of the spilled triangles (2 MiB in all), then for the parts but not the
     // block file (2.6 MiB).
-    for blocks in [1024, 2300] {
-        let r = limited(
-            blocks,
+    for kib in [1024, 2300] {
+        let r = on_full_disk(
+            &d.0,
+            kib,
             &[&"prepare", &s, &"-o", &dcb, &"--memory", &"16MiB"],
         );
         let err = String::from_utf8_lossy(&r.stderr);
         assert_eq!(r.status.code(), Some(1), "{err}");
         assert!(
-            err.contains("m.dcb") && err.contains("File too large"),
+            err.contains("m.dcb") && err.contains("No space left on device"),
             "{err}"
         );
         assert_eq!(std::fs::read(&dcb).unwrap(), b"old", "the old file stays");
