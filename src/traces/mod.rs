@@ -9,5 +9,3 @@ pub mod plot;
 pub mod read;
 pub mod record;
 pub mod summary;
-
-pub use read::{RankFrame, Traces};

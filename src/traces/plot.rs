@@ -55,7 +55,7 @@ struct Plot {
 impl Plot {
     fn of(t: &Traces) -> Plot {
         let frames = t.frames();
-        let tracing = |f: &super::RankFrame| {
+        let tracing = |f: &super::read::RankFrame| {
             f.frame
                 .role
                 .split('+')
@@ -66,7 +66,7 @@ impl Plot {
             .into_iter()
             .filter(|&r| t.files.iter().any(|f| f.frame.rank == r && tracing(f)))
             .collect();
-        let series = |value: &dyn Fn(&super::RankFrame) -> f64| -> Vec<Vec<Option<f64>>> {
+        let series = |value: &dyn Fn(&super::read::RankFrame) -> f64| -> Vec<Vec<Option<f64>>> {
             ranks
                 .iter()
                 .map(|&r| frames.iter().map(|&f| t.get(f, r).map(value)).collect())

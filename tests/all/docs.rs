@@ -98,3 +98,11 @@ fn the_architecture_opens_with_the_layers_and_the_module_map() {
         }
     }
 }
+
+#[test]
+fn the_readme_is_read_in_five_minutes() {
+    // Measurements and experiments live in docs/benchmarks.md and docs/notes/, not here.
+    let text = std::fs::read_to_string(repo().join("README.md")).unwrap();
+    let lines = text.lines().count();
+    assert!(lines <= 400, "README.md has {lines} lines, at most 400");
+}

@@ -4,7 +4,7 @@
 //! .config/nextest.toml).
 
 use crate::common::*;
-use dcrt::traces::Traces;
+use dcrt::traces::read::Traces;
 use dcrt::traces::summary::RunSummary;
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
@@ -627,12 +627,12 @@ fn cluster_plot_names_everything_and_ends_axes_at_the_maxima() {
         texts[1].text
     );
     let t = Traces::read(&traces).unwrap();
-    let render: Vec<&dcrt::traces::RankFrame> = t
+    let render: Vec<&dcrt::traces::read::RankFrame> = t
         .files
         .iter()
         .filter(|f| f.frame.role == "render")
         .collect();
-    let most = |v: &dyn Fn(&dcrt::traces::RankFrame) -> f64| {
+    let most = |v: &dyn Fn(&dcrt::traces::read::RankFrame) -> f64| {
         render.iter().map(|f| v(f)).fold(0.0, f64::max)
     };
     let rounds = most(&|f| f64::from(f.frame.rounds));

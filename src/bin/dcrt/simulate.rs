@@ -3,7 +3,7 @@
 use anyhow::{Result, bail};
 use clap::Args;
 use dcrt::simulate::{ClusterModel, simulate as run};
-use dcrt::traces::Traces;
+use dcrt::traces::read::Traces;
 use std::path::PathBuf;
 
 #[derive(Args)]

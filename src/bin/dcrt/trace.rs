@@ -3,7 +3,8 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use dcrt::chart::Format;
-use dcrt::traces::{Traces, perfetto, plot, summary::RunSummary};
+use dcrt::traces::read::Traces;
+use dcrt::traces::{perfetto, plot, summary::RunSummary};
 use std::path::PathBuf;
 
 #[derive(Args)]

@@ -21,7 +21,7 @@ use dcrt::progress::{Progress, say};
 use dcrt::render::{Prepared, mib};
 use dcrt::scene::Scene;
 use dcrt::simulate::{ClusterModel, Sharing, simulate};
-use dcrt::traces::Traces;
+use dcrt::traces::read::Traces;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
