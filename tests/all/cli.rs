@@ -367,6 +367,14 @@ fn row_num(r: &serde_json::Value, k: &str) -> f64 {
     r[k].as_f64().unwrap_or_else(|| panic!("row key {k}: {r}"))
 }
 
+/// `bench dc --step`: the report says the step its frames were turned by (the cameras
+/// themselves: `bench::dc::tests`).
+#[test]
+fn dc_bench_reports_its_step() {
+    let still = small_dc_bench(&["--caches", "1/8", "--cache-maps", "lru", "--step", "2.5"]);
+    assert_eq!(still["step"], 2.5);
+}
+
 /// `bench dc` renders each configuration's frames beside replicated frames of its own: its
 /// ratio is its warm frame over those (`replicated_frame_ms`), not over an orbit rendered before.
 #[test]

@@ -109,6 +109,10 @@ fn bench_refuses_options_it_cannot_measure() {
             "bench dc builds its model from a scene",
         ),
         (
+            &["dc", "--step", "400"],
+            "--step must be between 0 and 360 degrees, got 400",
+        ),
+        (
             &["dc", "--frames", "1"],
             "--frames must be at least 2 for bench dc",
         ),

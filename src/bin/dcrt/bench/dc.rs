@@ -22,6 +22,11 @@ pub struct DcArgs {
     /// Frames of the orbit (the first warms the cache and is reported apart).
     #[arg(long, default_value_t = 4)]
     frames: u32,
+    /// Degrees the camera turns about the focal point from one frame to the next (default: one
+    /// turn over the frames, 360/frames). A user turning a view moves a few degrees a frame,
+    /// and the cache lives on what consecutive frames share.
+    #[arg(long)]
+    step: Option<f64>,
     /// The in-process ranks the model is split over.
     #[arg(long, default_value_t = 8)]
     virtual_ranks: u32,
@@ -58,6 +63,11 @@ pub struct DcArgs {
 /// `bench dc`: the checks, the scene's model, the sweep.
 pub fn bench(a: &DcArgs) -> Result<()> {
     let format = a.scene.check(&a.gpu)?;
+    if let Some(s) = a.step
+        && !(0.0..=360.0).contains(&s)
+    {
+        bail!("--step must be between 0 and 360 degrees, got {s}");
+    }
     if a.frames < 2 {
         bail!("--frames must be at least 2 for bench dc (the first frame warms the cache)");
     }
@@ -129,6 +139,8 @@ struct DcReport {
     ranks: u32,
     rank: u32,
     frames: u32,
+    /// Degrees the camera turned a frame.
+    step: f64,
     repeats: u32,
     /// `--faults`: when rays went on past a fault.
     faults: dcrt::gpu::tracer::FaultMode,
@@ -179,9 +191,9 @@ fn run(
         quiet: a.report.quiet,
     }
     .bar(total * u64::from(a.repeats), "cache configurations");
-    let view = View::Orbit(camera);
+    let step = a.step.unwrap_or(360.0 / f64::from(a.frames));
     let render = |tracer: &mut dcrt::gpu::tracer::Tracer<'_>, f: u32| -> Result<FrameStats> {
-        let at = View::Fixed(view.camera(f, a.frames));
+        let at = View::Fixed(turned(camera, step, f));
         Ok(frame_stats(tracer, at, 1, size, scene.background)?.remove(0))
     };
     for repeat in 0..a.repeats {
@@ -191,13 +203,8 @@ fn run(
         }
         if configs.len() == 1 {
             bar.inc(1);
-            runs[0].push(frame_stats(
-                &mut replicated,
-                view,
-                a.frames,
-                size,
-                scene.background,
-            )?);
+            let frames = (0..a.frames).map(|f| render(&mut replicated, f));
+            runs[0].push(frames.collect::<Result<Vec<_>>>()?);
         }
         for (i, (cfg, _)) in configs.iter().enumerate().skip(1) {
             bar.inc(1);
@@ -346,6 +353,7 @@ fn run(
         ranks: a.virtual_ranks,
         rank: a.rank,
         frames: a.frames,
+        step,
         repeats: a.repeats,
         faults: a.switches.faults,
         overlap_batches: a.switches.overlap_batches,
@@ -356,11 +364,16 @@ fn run(
     emit(a.report.json, &report, print)
 }
 
+/// Frame `f`'s camera: `camera` turned `step` degrees a frame about its focal point.
+fn turned(camera: Camera, step: f64, f: u32) -> Camera {
+    camera.orbit((step * f64::from(f)).to_radians())
+}
+
 fn print(report: &DcReport) {
     println!("adapter   {}", report.adapter);
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
-         {} orbit frames (the first, cold, reported apart), {} repeat(s), --faults {:?}, \
+         {} orbit frames {}° apart (the first, cold, reported apart), {} repeat(s), --faults {:?}, \
          --overlap-batches {:?}",
         report.scene,
         report.triangles,
@@ -370,6 +383,7 @@ fn print(report: &DcReport) {
         report.rank,
         report.ranks,
         report.frames,
+        report.step,
         report.repeats,
         report.faults,
         report.overlap_batches
@@ -455,5 +469,39 @@ fn print(report: &DcReport) {
             format!("{:.1}", m.cache_mib),
             format!("{:.1}", m.total_mib),
         ]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_turn_by_the_step_and_by_default_once_round_the_orbit() {
+        let camera = Camera {
+            position: [3.0, 0.0, 0.0],
+            focal_point: [0.0, 0.0, 0.0],
+            view_up: [0.0, 0.0, 1.0],
+            view_angle: 30.0,
+            parallel_scale: None,
+        };
+        // The default step is the orbit's: frame f of n at 360 f / n degrees.
+        for f in 0..4 {
+            let orbit = View::Orbit(camera).camera(f, 4);
+            let by_step = turned(camera, 90.0, f);
+            for (a, b) in orbit.position.iter().zip(by_step.position) {
+                assert!(
+                    (a - b).abs() < 1e-12,
+                    "frame {f}: {orbit:?} against {by_step:?}"
+                );
+            }
+        }
+        // Three degrees a frame: frame 30 is a quarter turn, at (0, 3, 0).
+        let p = turned(camera, 3.0, 30).position;
+        assert!(
+            p[0].abs() < 1e-9 && (p[1] - 3.0).abs() < 1e-9 && p[2] == 0.0,
+            "{p:?}"
+        );
+        assert_eq!(turned(camera, 0.0, 7).position, camera.position);
     }
 }
