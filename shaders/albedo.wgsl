@@ -1,4 +1,4 @@
-// Colour by data (docs/ARCHITECTURE.md, Colour by data): after a batch's trace rounds, every hit
+// Colour by data (docs/ARCHITECTURE.md, Colour by data): after a batch's traversal rounds, every hit
 // on a mesh coloured by data reads its triangle's attributes from the attribute blocks and
 // writes its albedo: a scalar (interpolated at the hit for point data, as ParaView interpolates
 // scalars before mapping) through the mesh's colormap, or a direct colour. A rank that lacks the

@@ -1,4 +1,4 @@
-// Between trace rounds: turns the live count just produced into indirect dispatch arguments and
+// Between traversal rounds: turns the live count just produced into indirect dispatch arguments and
 // clears the other counter, which the next round appends to.
 #import counter
 

@@ -1,4 +1,4 @@
-// One trace round: every live ray runs at most `step_budget` loop iterations of closest-hit BVH
+// One traversal round: every live ray runs at most `step_budget` loop iterations of closest-hit BVH
 // traversal (lavapipe silently stops a loop after 65,535 iterations, so no invocation may ever
 // come near that), then saves its state. A ray that needs a block its GPU lacks records a fault,
 // sets the entry aside in one of DEFER_SLOTS slots after its stack and goes on with what the GPU

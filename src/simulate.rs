@@ -1,7 +1,7 @@
 //! Replays a cluster run's traces at another number of ranks (docs/ARCHITECTURE.md, Traces).
 //!
 //! The model: a frame's cost is spread over the image as the run measured it, each recorded
-//! tile's time (GPU trace rounds and shading, its fetches, sending its pixels) over its pixels.
+//! tile's time (GPU traversal rounds and shading, its fetches, sending its pixels) over its pixels.
 //! The fetch part is the tile's share (by GPU time) of its rank's `fetch_ms`; with `bandwidth`
 //! or `latency` given it becomes `latency x rounds + bytes / bandwidth` for the tile's share of
 //! the rank's fault rounds and bytes. K ranks have the render ranks `cluster::Roles` gives

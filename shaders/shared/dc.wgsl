@@ -38,7 +38,7 @@ fn block_row(k: u32) -> u32 {
 // round. Plain stores: racing writers write the same value.
 @group(0) @binding(9) var<storage, read_write> line_used: array<u32>;
 
-// Per invocation, summed into Stats by the trace kernel.
+// Per invocation, summed into Stats by the traversal kernel.
 var<private> dc_hits: u32 = 0u;
 var<private> dc_misses: u32 = 0u;
 

@@ -1,4 +1,4 @@
-// The live list a kernel appends its rays to, for the next trace round's indirect dispatch.
+// The live list a kernel appends its rays to, for the next traversal round's indirect dispatch.
 #import counter
 
 @group(1) @binding(4) var<storage, read_write> live_out: array<u32>;

@@ -1,4 +1,4 @@
-// The state of one ray between trace rounds (host: gpu::layout::RayState) and what every kernel
+// The state of one ray between traversal rounds (host: gpu::layout::RayState) and what every kernel
 // asks of a ray.
 #import params
 

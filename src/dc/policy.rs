@@ -1,4 +1,4 @@
-//! The host's cache policy between trace rounds (docs/ARCHITECTURE.md, The round loop): the
+//! The host's cache policy between traversal rounds (docs/ARCHITECTURE.md, The round loop): the
 //! round's fault list comes in; which blocks to load into which lines, what each load evicts, and
 //! the changes to the GPU's block-row table go out. Pure bookkeeping, so it is tested without a
 //! GPU; `gpu::faults` applies its plans.

@@ -28,7 +28,7 @@ pub struct Batch {
     pub albedos: wgpu::Buffer,
     /// A `RoundReadback`.
     pub readback: wgpu::Buffer,
-    /// Two GPU timestamps around each submission's trace rounds, and their resolve buffer.
+    /// Two GPU timestamps around each submission's traversal rounds, and their resolve buffer.
     pub timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     /// A `FaultHeader` and the fault list; per cache line the waiting rays, then `line_used`'s
     /// two halves (used, kept).

@@ -1,5 +1,5 @@
 //! The distributed cache's GPU half (docs/ARCHITECTURE.md, The distributed cache): the buffers
-//! the kernels record faults in, and, between trace rounds, the service of a round's faults: the
+//! the kernels record faults in, and, between traversal rounds, the service of a round's faults: the
 //! fault list read back, `dc::policy` plans the loads, the block source fetches them, the store
 //! and the row table are updated.
 

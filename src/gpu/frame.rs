@@ -15,13 +15,13 @@ pub struct FrameStats {
     pub max_live_rounds: u32,
     pub steps: u64,
     pub tri_tests: u64,
-    /// Wall time of the whole frame, and of its parts: ray generation and trace rounds until the
+    /// Wall time of the whole frame, and of its parts: ray generation and traversal rounds until the
     /// last live count came back; shading and the pixel readback (including the copy into the
     /// frame).
     pub seconds: f64,
     pub trace_seconds: f64,
     pub shade_seconds: f64,
-    /// GPU time of the trace rounds by GPU timestamps (0 when the adapter has none); the rest of
+    /// GPU time of the traversal rounds by GPU timestamps (0 when the adapter has none); the rest of
     /// `trace_seconds` is submission, readback and the CPU's fault service.
     pub gpu_seconds: f64,
     /// Distributed cache: cache consultations, hits, misses; blocks fetched and their bytes;

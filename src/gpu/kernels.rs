@@ -221,7 +221,7 @@ impl Kernel {
 pub struct Kernels {
     pub raygen: Kernel,
     pub traverse: Kernel,
-    /// With a cache, `trace` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
+    /// With a cache, `traverse` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
     /// nothing aside (`Params::dc_defer` 0): a CPU driver runs the set-aside code of a loop pass
     /// whether or not a ray takes it (2.8% of a 1/8-cache frame's instructions).
     pub traverse_suspending: Option<Kernel>,

@@ -300,7 +300,7 @@ pub struct Path {
 }
 const _: () = assert!(std::mem::size_of::<Path>() == 80);
 
-/// What the host reads back after each batch of trace rounds, copied together into one
+/// What the host reads back after each batch of traversal rounds, copied together into one
 /// buffer: the live counter, the trace statistics, the rounds' two GPU timestamps and the live
 /// count the batch's first round started with.
 #[repr(C)]

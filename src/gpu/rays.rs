@@ -1,4 +1,4 @@
-//! Arbitrary rays (tests, tools, secondary rays from the host) through the same trace kernel and
+//! Arbitrary rays (tests, tools, secondary rays from the host) through the same traversal kernel and
 //! round loop as rendering.
 
 use super::frame::FrameStats;
@@ -14,7 +14,7 @@ impl Tracer<'_> {
     /// each ray's closest hit with `t` in `(0, tmax)`, in units of the direction's length.
     ///
     /// A ray with a NaN or infinite origin or direction component, a zero direction, or a `tmax`
-    /// that is NaN or not positive is a miss (the trace kernel checks, so rays made on the GPU
+    /// that is NaN or not positive is a miss (the traversal kernel checks, so rays made on the GPU
     /// get the same treatment). `tmax = +inf` means no limit (the kernel's `FAR`, 3e38).
     ///
     /// The rays are taken to leave surfaces (spawned rays): a hit must be proven in front of

@@ -1,5 +1,5 @@
 //! The round loop (docs/ARCHITECTURE.md, The round loop): a batch's rays are traced in rounds of
-//! `trace` (each live ray runs at most `step_budget` loop iterations, then saves its state) and
+//! `traverse` (each live ray runs at most `step_budget` loop iterations, then saves its state) and
 //! `args` (the count of rays still live becomes the next round's indirect dispatch). With a
 //! distributed cache, every round's faults are read back and served (`dc::policy` decides,
 //! the block source fetches, the store and the row table are updated) before the next round;
@@ -13,7 +13,7 @@ use super::tracer::{MAX_STACK, Tracer};
 use crate::error::{Error, Result};
 use std::time::Instant;
 
-/// What starts a batch's trace rounds: primary rays, or a wave of secondary rays.
+/// What starts a batch's traversal rounds: primary rays, or a wave of secondary rays.
 #[derive(Clone, Copy)]
 pub(super) enum Gen {
     Primary,
@@ -21,7 +21,7 @@ pub(super) enum Gen {
 }
 
 impl Tracer<'_> {
-    /// Generates the batch's rays (primary, or a wave of secondary rays) and runs trace rounds
+    /// Generates the batch's rays (primary, or a wave of secondary rays) and runs traversal rounds
     /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
     /// Returns how many rays entered traversal.
     pub(super) fn traverse_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
@@ -227,7 +227,7 @@ pub(super) fn stalled(live: u32, moved: bool, listed: u32) -> bool {
 
 pub(super) fn stall_error(live: u32, round: u32) -> Error {
     Error::Gpu(format!(
-        "trace round {round}: {live} rays still live, but none moved and none asked for a block \
+        "traversal round {round}: {live} rays still live, but none moved and none asked for a block \
          (an internal error: the frame could never end)"
     ))
 }

@@ -1,6 +1,6 @@
 //! The batch scheduler (docs/ARCHITECTURE.md, Overlapping batches): with a distributed cache,
 //! the next batch starts in a spare lane while the last rays of those in flight still wait for
-//! blocks, every round dispatches `trace` in each lane with a batch, and their faults are served
+//! blocks, every round dispatches `traverse` in each lane with a batch, and their faults are served
 //! together; a batch whose rays are done is shaded and read back in its lane.
 
 use super::batch::TILE_RAYS;
@@ -174,7 +174,7 @@ impl Tracer<'_> {
     /// are down to a `TAIL_SHARE`th of those it started with (and, unless the cache is `lru`,
     /// the last round used at most half the cache's lines), the next batch (of this rectangle,
     /// or of the next one the source has) starts in a free lane, and each round dispatches
-    /// `trace` in every lane with a batch and serves their faults together. A batch whose rays
+    /// `traverse` in every lane with a batch and serves their faults together. A batch whose rays
     /// are all done is resolved, shaded and read back in its lane; a rectangle whose batches
     /// are all done goes to `source.done`. With `passes`, each finished batch is reported to the
     /// progress callback.

@@ -95,7 +95,7 @@ impl Tracer<'_> {
     /// Colour by data: the albedo of every hit on a mesh coloured by data, from the attribute
     /// blocks, for the ray slots `Params::albedo_stride` names (docs/ARCHITECTURE.md, Colour by
     /// data). With a distributed cache an absent attribute block is a fault: the round's faults
-    /// are served as the trace rounds' are and the kernel runs again, skipping the slots already
+    /// are served as the traversal rounds' are and the kernel runs again, skipping the slots already
     /// resolved, until a dispatch faults on nothing. A model without attributes does nothing.
     pub(super) fn resolve_albedos(&mut self, stats: &mut FrameStats) -> Result<()> {
         if self.kernels.albedo.is_none() {

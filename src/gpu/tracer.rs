@@ -54,7 +54,7 @@ pub const FAULT_CAP: u32 = 1 << 16;
 
 #[derive(Clone, Copy, Debug)]
 pub struct Settings {
-    /// Loop iterations a ray may run per trace dispatch.
+    /// Loop iterations a ray may run per traversal dispatch.
     pub step_budget: u32,
     /// Upper bound on rays per batch (rounded down to whole tiles); memory limits may lower it.
     pub max_batch_rays: u32,
@@ -74,7 +74,7 @@ pub struct Settings {
     /// With a cache: the distinct faults a round records, 1..=`FAULT_CAP` (the rest fault again
     /// next round). Tests set it small so that rounds drop faults.
     pub fault_cap: u32,
-    /// Count node visits and node- and triangle-block entries in every trace round
+    /// Count node visits and node- and triangle-block entries in every traversal round
     /// (`FrameStats::node_visits` and the two after it; 0 without). Off by default: the counts
     /// cost the trace loop time (`BLOCK_COUNTS` in shaders/traverse.wgsl), and the benchmarks take
     /// them from a frame of their own (`Tracer::set_block_counts`).

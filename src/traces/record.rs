@@ -85,7 +85,7 @@ pub struct Fault {
     pub served: bool,
 }
 
-/// One fault round: the trace dispatch that faulted, then the fetch and upload that served it.
+/// One fault round: the traversal dispatch that faulted, then the fetch and upload that served it.
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct Round {
     pub batch: u32,

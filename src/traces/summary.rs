@@ -19,7 +19,7 @@ pub struct Row {
     pub fetched_blocks: u64,
     pub fetched_bytes: u64,
     pub frame_ms: f64,
-    /// GPU trace rounds.
+    /// GPU traversal rounds.
     pub trace_ms: f64,
     pub fetch_ms: f64,
     pub upload_ms: f64,

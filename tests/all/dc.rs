@@ -92,7 +92,7 @@ fn sweep(g: Generator) {
                     // the same view again, every block cached, fetches nothing and looks up the
                     // same blocks: counted by the host from the lines the GPU used and the
                     // faults, not only from what was fetched. With every node block replicated
-                    // the trace kernel marks the lines it used when a ray stops, not as it goes.
+                    // the traversal kernel marks the lines it used when a ray stops, not as it goes.
                     let never = Settings {
                         faults: FaultMode::Never,
                         ..Settings::default()

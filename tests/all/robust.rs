@@ -245,7 +245,7 @@ struct Reintersection {
 
 /// The origin of a ray leaving `hit` in direction `w`: its hit point offset past its error to
 /// the side `w` points to, as the spawn kernel does (`offset_ray` is pinned to the kernel's by
-/// the mirror tests; the point and its bound are the trace kernel's own).
+/// the mirror tests; the point and its bound are the traversal kernel's own).
 fn spawn_origin(hit: &RayHit, w: [f32; 3]) -> [f32; 3] {
     let n = hit.normal;
     let d: f32 = (0..3).map(|a| n[a] * w[a]).sum();
@@ -255,7 +255,7 @@ fn spawn_origin(hit: &RayHit, w: [f32; 3]) -> [f32; 3] {
 
 /// pbrt-v4's reintersection test on the GPU: `triangles` triangles with coordinates log-uniform
 /// over 1e-8..1e8, each alone in its scene; a ray from a log-uniform origin at a random point of
-/// the triangle; from its hit (the trace kernel's point and error bound) `spawned` rays in
+/// the triangle; from its hit (the traversal kernel's point and error bound) `spawned` rays in
 /// random directions on both sides, their origins offset as the spawn kernel offsets them.
 fn reintersect(seed: u64, triangles: usize, spawned: usize, signed: bool) -> Reintersection {
     let gpu = gpu();

@@ -1,4 +1,4 @@
-//! The budgeted trace rounds: a tiny step budget gives the same image as a large one (no result
+//! The budgeted traversal rounds: a tiny step budget gives the same image as a large one (no result
 //! is ever truncated), every ray ends done, and a view of nothing is all misses.
 
 use crate::common::*;
@@ -63,7 +63,7 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     assert!(rays.iter().any(|r| r.steps > 5 * 4));
 }
 
-/// A frame's `steps` is the sum of its rays' own: the trace kernel's per-workgroup sum of its
+/// A frame's `steps` is the sum of its rays' own: the traversal kernel's per-workgroup sum of its
 /// invocations' counts (`wg_counts`) loses none.
 #[test]
 fn frame_steps_are_the_sum_of_every_ray_s_steps() {

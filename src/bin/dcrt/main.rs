@@ -59,7 +59,7 @@ struct GpuArgs {
     /// Use the first adapter whose name contains this text (default: the best GPU, else lavapipe).
     #[arg(long)]
     adapter: Option<String>,
-    /// Loop iterations a ray may run per trace dispatch (1..=60000).
+    /// Loop iterations a ray may run per traversal dispatch (1..=60000).
     #[arg(long, default_value_t = DEFAULT_STEP_BUDGET)]
     step_budget: u32,
     #[command(flatten)]

@@ -112,7 +112,7 @@ struct DcRow {
     /// The batch buffers of the tracer's lanes after the last frame (`Tracer::batch_bytes`): the
     /// rays, stacks and pixels in flight, beside the blocks and the cache.
     lanes_mib: f64,
-    /// Of the warm frames' time: GPU trace rounds (timestamps), submission and readback waits,
+    /// Of the warm frames' time: GPU traversal rounds (timestamps), submission and readback waits,
     /// CPU fetch, upload, shading.
     gpu_share: f64,
     sync_share: f64,

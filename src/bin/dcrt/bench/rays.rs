@@ -99,7 +99,7 @@ struct BenchRow {
     /// Steps over the loop iterations the trace's lanes ran, busy or idle (`FrameStats::
     /// lane_steps`, from the block-count frame): the share of lanes doing work.
     lane_use: f64,
-    /// Of the last run: share of the frame in raygen + trace rounds, and in shade + readback.
+    /// Of the last run: share of the frame in raygen + traversal rounds, and in shade + readback.
     trace_share: f64,
     shade_share: f64,
 }
