@@ -91,7 +91,10 @@ fn the_architecture_opens_with_the_layers_and_the_module_map() {
         let name = f.unwrap().file_name().to_string_lossy().into_owned();
         if name.ends_with(".rs") {
             let path = format!("src/gpu/{name}");
-            assert!(entries.contains(&path), "{path} is missing from the module map");
+            assert!(
+                entries.contains(&path),
+                "{path} is missing from the module map"
+            );
         }
     }
 }
