@@ -393,3 +393,56 @@ fn wait_bounded(child: &mut Child, limit: Duration) -> Option<std::process::Exit
     }
     None
 }
+
+/// The page in a headless Chromium (tests/view_browser.py, selenium in the venv
+/// scripts/setup.sh makes): it loads, shows a frame, a left drag turns the camera (GET /camera
+/// sees it) and a frame of the new camera arrives. Skipped, saying so, only where Chromium is
+/// not installed; with Chromium but without the venv it fails.
+#[test]
+fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
+    let which = |name: &str| {
+        std::env::var_os("PATH").and_then(|paths| {
+            std::env::split_paths(&paths)
+                .map(|d| d.join(name))
+                .find(|p| p.is_file())
+        })
+    };
+    let (Some(chromium), Some(driver)) = (which("chromium"), which("chromedriver")) else {
+        eprintln!(
+            "SKIPPED: chromium and chromedriver are not installed (scripts/setup.sh installs \
+             Debian's chromium and chromium-driver)"
+        );
+        return;
+    };
+    let python = crate::common::repo().join(".view-venv/bin/python");
+    assert!(
+        python.is_file(),
+        "{} is missing: run scripts/setup.sh (it makes the venv with selenium)",
+        python.display()
+    );
+    let d = TempDir::new("view-browser");
+    let scene = scene(&d);
+    let v = View::start(&scene, &[]);
+    let mut child = Command::new(&python)
+        .arg(crate::common::repo().join("tests/view_browser.py"))
+        .arg(&v.url)
+        .arg(&driver)
+        .arg(&chromium)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = wait_bounded(&mut child, Duration::from_secs(240));
+    if status.is_none() {
+        let _ = child.kill();
+    }
+    let out = child.wait_with_output().unwrap();
+    let said = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(status.is_some(), "the browser test did not end: {said}");
+    assert!(out.status.success(), "{said}");
+    assert!(said.contains("view_browser: ok"), "{said}");
+}
