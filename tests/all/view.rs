@@ -446,3 +446,101 @@ fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
     assert!(out.status.success(), "{said}");
     assert!(said.contains("view_browser: ok"), "{said}");
 }
+
+type Socket = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;
+
+fn socket(port: u16) -> Socket {
+    let (mut ws, _) = tungstenite::connect(format!("ws://127.0.0.1:{port}/ws")).unwrap();
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_mut() {
+        s.set_read_timeout(Some(ANSWER)).unwrap();
+    }
+    ws
+}
+
+/// The next message on `ws` that is a frame (its description and JPEG) or an error.
+enum Got {
+    Frame(serde_json::Value, Vec<u8>),
+    Error(String),
+}
+
+fn next(ws: &mut Socket) -> Got {
+    let mut info = None;
+    loop {
+        match ws.read().expect("a message within the bound") {
+            tungstenite::Message::Text(t) => {
+                let v: serde_json::Value = serde_json::from_str(&t).unwrap();
+                if let Some(e) = v.get("error") {
+                    return Got::Error(e.as_str().unwrap().to_string());
+                }
+                info = Some(v);
+            }
+            tungstenite::Message::Binary(b) => {
+                let info = info.take().expect("a frame's description before its JPEG");
+                return Got::Frame(info, b.to_vec());
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Frames on `ws` until one of wish `seq` with every sample: its description and JPEG.
+fn finished_frame(ws: &mut Socket, seq: u64) -> (serde_json::Value, Vec<u8>) {
+    loop {
+        if let Got::Frame(info, jpeg) = next(ws)
+            && info["seq"].as_u64() == Some(seq)
+            && info["full"] == true
+            && info["samples"] == info["spp"]
+        {
+            return (info, jpeg);
+        }
+    }
+}
+
+/// Several pages at once: each gets the frames; one steers over its WebSocket and the others see
+/// its camera's frames; a malformed message is answered with an error and the socket goes on; a
+/// page that leaves harms nobody.
+#[test]
+fn websocket_clients_steer_and_watch() {
+    let d = TempDir::new("view-ws");
+    let scene = scene(&d);
+    let v = View::start(&scene, &[]);
+    let (mut steer, mut watch) = (socket(v.port), socket(v.port));
+    let (info, jpeg) = finished_frame(&mut watch, 0);
+    assert_eq!(
+        (info["width"].as_u64(), info["height"].as_u64()),
+        (Some(64), Some(48))
+    );
+    let img = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg).unwrap();
+    assert_eq!((img.width(), img.height()), (64, 48));
+    steer
+        .send(tungstenite::Message::text("{\"camera\": [1, 2"))
+        .unwrap();
+    loop {
+        if let Got::Error(e) = next(&mut steer) {
+            assert!(e.contains("not a view message"), "{e}");
+            break;
+        }
+    }
+    let c = moved(&v.get_json("/camera"));
+    let m = serde_json::json!({ "camera": c, "interactive": false });
+    steer
+        .send(tungstenite::Message::text(m.to_string()))
+        .unwrap();
+    let (seen, _) = finished_frame(&mut watch, 1);
+    assert_eq!(seen["camera"]["position"], c["position"]);
+    finished_frame(&mut steer, 1);
+    assert_eq!(v.get_json("/camera")["position"], c["position"]);
+    // The watcher leaves; the steering page and the API go on.
+    drop(watch);
+    let set = serde_json::json!({ "settings": { "mode": "shadows" } });
+    steer
+        .send(tungstenite::Message::text(set.to_string()))
+        .unwrap();
+    let (info, _) = finished_frame(&mut steer, 2);
+    assert_eq!(info["mode"], "shadows");
+    assert_same(
+        &v.frame(2),
+        &render(&d, &scene, &c, &["--mode", "shadows"]),
+        "shadows after a settings message",
+    );
+}
