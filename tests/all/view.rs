@@ -544,3 +544,25 @@ fn websocket_clients_steer_and_watch() {
         "shadows after a settings message",
     );
 }
+
+/// Through a distributed cache of virtual ranks the still frame is still `dcrt render`'s with the
+/// same cache options, and the statistics count the cache's work.
+#[test]
+fn distributed_cache_still_frame_equals_render() {
+    let d = TempDir::new("view-dc");
+    let scene = scene(&d);
+    let dc = ["--virtual-ranks", "3", "--rank", "1", "--cache", "4lines"];
+    let v = View::start(&scene, &dc);
+    let c = moved(&v.get_json("/camera"));
+    let seq = v.post_camera(&c);
+    assert_same(
+        &v.frame(seq),
+        &render(&d, &scene, &c, &dc),
+        "3 virtual ranks",
+    );
+    let stats = v.get_json("/stats");
+    assert!(stats["fault_rounds"].as_u64().unwrap() > 0, "{stats}");
+    assert!(stats["fetched_mib"].as_f64().unwrap() > 0.0, "{stats}");
+    let rate = stats["hit_rate"].as_f64().unwrap();
+    assert!(rate > 0.0 && rate < 1.0, "{stats}");
+}
