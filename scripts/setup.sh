@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, DejaVu fonts (the text of `--legend` and `bench figures`), and
+# crate), Open MPI, DejaVu fonts (the text of `--legend` and charts), Chromium and its WebDriver
+# with a Python venv holding selenium (.view-venv: the browser test of `dcrt view`), and
 # cargo-nextest. On Debian 12, lavapipe comes from bookworm-backports (Mesa 25 rather than the
 # release's 22.3.6: the same images, faster kernels; DCRT_SYSTEM_MESA=1 keeps the release's).
 # Installs only what is missing; safe to run again.
@@ -8,7 +9,8 @@ set -euo pipefail
 sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"
 
-packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core)
+packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core
+  chromium chromium-driver python3-venv)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -34,4 +36,14 @@ fi
 if ! cargo nextest --version >/dev/null 2>&1; then
   echo "setup: installing cargo-nextest"
   cargo install cargo-nextest --locked
+fi
+
+# The browser test of `dcrt view` (tests/view_browser.py) drives Chromium with selenium.
+SELENIUM_VERSION=4.51.0
+root="$(cd "$(dirname "$0")/.." && pwd)"
+venv="$root/.view-venv"
+if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c "import selenium, sys; sys.exit(selenium.__version__ != '$SELENIUM_VERSION')" 2>/dev/null; then
+  echo "setup: creating $venv with selenium==$SELENIUM_VERSION"
+  python3 -m venv "$venv"
+  "$venv/bin/pip" install -q "selenium==$SELENIUM_VERSION"
 fi

@@ -27,5 +27,6 @@ pub mod shading;
 pub mod simulate;
 pub mod size;
 pub mod traces;
+pub mod view;
 
 pub use error::{Error, Result};

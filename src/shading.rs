@@ -120,6 +120,11 @@ pub struct Shading {
     /// The sampler index of the render's first sample: renders of samples `0..a` and `a..a+b`
     /// combine into the render of `0..a+b` (progressive accumulation).
     pub first_sample: u32,
+    /// When this render is one part of a progressive one (samples `first_sample..first_sample +
+    /// spp` of `Some(n)`): the samples per pixel of the whole, which decides, as `spp` does for a
+    /// render of its own, whether primary rays are jittered. The parts' sums, added in sample
+    /// order, are then the bits of the whole render's sum. `None`: the render stands alone.
+    pub part_of_spp: Option<u32>,
     pub seed: u32,
     pub sampler: Sampler,
     pub ao_rays: u32,
@@ -152,6 +157,7 @@ impl Default for Shading {
             mode: Mode::Cast,
             spp: 1,
             first_sample: 0,
+            part_of_spp: None,
             seed: 0,
             sampler: Sampler::Sobol,
             ao_rays: DEFAULT_AO_RAYS,
@@ -238,6 +244,15 @@ impl Shading {
         }
         if self.first_sample.checked_add(self.spp).is_none() {
             return bad("first sample + spp overflows".into());
+        }
+        if let Some(n) = self.part_of_spp
+            && self.first_sample + self.spp > n
+        {
+            return bad(format!(
+                "samples {}..{} are not a part of a render of {n} samples",
+                self.first_sample,
+                self.first_sample + self.spp
+            ));
         }
         if !(1..=MAX_AO_RAYS).contains(&self.ao_rays) {
             return bad(format!(

@@ -17,8 +17,11 @@ use std::time::Instant;
 
 /// `Params::flags` for sample `s` (counted from the rectangle's first) of a shading setup.
 pub(super) fn sample_flags(sh: Shading, basis: &CameraBasis, s: u32) -> u32 {
-    (if sh.spp > 1 { flags::JITTER } else { 0 })
-        | if sh.cull { flags::CULL } else { 0 }
+    (if sh.part_of_spp.unwrap_or(sh.spp) > 1 {
+        flags::JITTER
+    } else {
+        0
+    }) | if sh.cull { flags::CULL } else { 0 }
         | if s == 0 { flags::FIRST_SAMPLE } else { 0 }
         | match sh.sampler {
             Sampler::Sobol => 0,

@@ -116,7 +116,12 @@ impl Camera {
 
     /// The same camera turned by `angle` radians about the axis through the focal point along
     /// `view_up`: the orbit used for multi-frame renders.
+    /// At angle 0 the camera itself, to the bit (the first frame of an orbit is the camera
+    /// given, as `dcrt view` renders it).
     pub fn orbit(&self, angle: f64) -> Camera {
+        if angle == 0.0 {
+            return *self;
+        }
         let c = DVec3::from(self.focal_point);
         let axis = DVec3::from(self.view_up).normalize();
         let rot = glam::DQuat::from_axis_angle(axis, angle);
@@ -207,6 +212,17 @@ mod tests {
         let mut c = cam();
         c.position[0] = f64::NAN;
         assert!(c.validate().is_err());
+    }
+
+    #[test]
+    fn orbit_by_nothing_is_the_camera_to_the_bit() {
+        // (-2.19 - 2.08) + 2.08 is not -2.19 in f64: turning by 0 must not round the position.
+        let c = Camera {
+            position: [-2.19, -5.0, 0.0],
+            focal_point: [2.08, 0.0, 0.0],
+            ..cam()
+        };
+        assert_eq!(c.orbit(0.0), c);
     }
 
     #[test]

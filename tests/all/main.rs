@@ -28,3 +28,4 @@ mod shading;
 mod soak;
 mod tools;
 mod trace_loop;
+mod view;

@@ -9,6 +9,7 @@ mod prepare;
 mod render;
 mod simulate;
 mod trace;
+mod view;
 
 use clap::{Args, Parser, Subcommand};
 use dcrt::bvh::Preset;
@@ -52,6 +53,9 @@ enum Command {
     Trace(trace::TraceArgs),
     /// Predict frame times at K ranks from a cluster run's traces.
     Simulate(simulate::SimulateArgs),
+    /// Serve a live view: the frames in a browser as they are made, the camera under the mouse,
+    /// and an HTTP API for scripts (`/camera`, `/frame.png`, `/stats`).
+    View(view::ViewArgs),
 }
 
 #[derive(Args, Clone)]
@@ -146,6 +150,7 @@ fn main() -> ExitCode {
         Command::Bench(b) => bench::bench(b),
         Command::Trace(a) => trace::trace(a),
         Command::Simulate(a) => simulate::simulate(a),
+        Command::View(a) => view::view(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

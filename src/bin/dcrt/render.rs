@@ -10,7 +10,7 @@ use dcrt::blocks::Format;
 use dcrt::dc::{CacheMap, CacheSize, Replicate};
 use dcrt::files;
 use dcrt::gpu::Gpu;
-use dcrt::gpu::tracer::Settings;
+use dcrt::gpu::tracer::{Settings, Tracer};
 use dcrt::output;
 use dcrt::output::Aov;
 use dcrt::progress::{Progress, say};
@@ -122,7 +122,7 @@ pub struct DcArgs {
 }
 
 impl DcArgs {
-    fn options(&self) -> Result<Option<DcOptions>> {
+    pub fn options(&self) -> Result<Option<DcOptions>> {
         let Some(n) = self.virtual_ranks else {
             if self.replicate_blocks != Replicate::Root {
                 bail!(
@@ -252,13 +252,26 @@ pub fn say_kept(kept: Option<String>) {
     }
 }
 
-fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
-    let dc = a.dc.options()?;
-    let camera = a.camera.as_deref().map(pvcc::load_pvcc).transpose()?;
-    let mut loaded = Loaded::open(&a.scene, a.gpu.build.bvh_preset, format)?;
+/// The distributed cache's options (checked first), then the model of `scene` with the camera of
+/// the `--camera` file when given: what `render` and `view` open in one process.
+pub fn open_model(
+    scene: &Path,
+    camera: Option<&Path>,
+    gpu: &GpuArgs,
+    dc: &DcArgs,
+    format: Format,
+) -> Result<(Option<DcOptions>, Loaded)> {
+    let dc = dc.options()?;
+    let camera = camera.map(pvcc::load_pvcc).transpose()?;
+    let mut loaded = Loaded::open(scene, gpu.build.bvh_preset, format)?;
     if let Some(c) = camera {
         loaded.camera = c;
     }
+    Ok((dc, loaded))
+}
+
+fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
+    let (dc, loaded) = open_model(&a.scene, a.camera.as_deref(), &a.gpu, &a.dc, format)?;
     let legend = a
         .legend
         .then(|| dcrt::legend::Legend::new(&loaded.meshes.looks, loaded.background))
@@ -278,24 +291,7 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
     }
     .for_image(width, height);
     let mut tracer = loaded.tracer(&gpu, s, dc.as_ref())?;
-    match &dc {
-        Some(o) => {
-            let m = o.memory(loaded.block_count(), loaded.node_blocks(), loaded.format())?;
-            dcrt::report!(
-                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}; blocks in \
-                 {}) of a {:.1} MiB model",
-                o.rank,
-                o.ranks,
-                mib(m.resident_bytes),
-                mib(m.cache_bytes),
-                o.lines(loaded.block_count(), loaded.format()),
-                o.map,
-                tracer.store_description(),
-                mib(loaded.model_bytes())
-            );
-        }
-        None => dcrt::report!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
-    }
+    say_model(dc.as_ref(), &loaded, &tracer)?;
     // How far the render is: a bar over every frame's sample passes on a terminal; elsewhere a
     // long frame's line no more often than --progress-every; nothing with --quiet.
     let progress = Progress { quiet: a.quiet };
@@ -392,6 +388,29 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
         let all =
             serde_json::json!({"ranks": 1, "width": width, "height": height, "frames": frames});
         files::write_bytes(path, all.to_string().as_bytes())?;
+    }
+    Ok(())
+}
+
+/// The model's line on stderr: replicated, or the rank's resident blocks and cache.
+pub fn say_model(dc: Option<&DcOptions>, loaded: &Loaded, tracer: &Tracer<'_>) -> Result<()> {
+    match dc {
+        Some(o) => {
+            let m = o.memory(loaded.block_count(), loaded.node_blocks(), loaded.format())?;
+            dcrt::report!(
+                "rank {} of {}: {:.1} MiB resident + {:.1} MiB cache ({} lines, {:?}; blocks in \
+                 {}) of a {:.1} MiB model",
+                o.rank,
+                o.ranks,
+                mib(m.resident_bytes),
+                mib(m.cache_bytes),
+                o.lines(loaded.block_count(), loaded.format()),
+                o.map,
+                tracer.store_description(),
+                mib(loaded.model_bytes())
+            );
+        }
+        None => dcrt::report!("replicated: {:.1} MiB of blocks", mib(loaded.model_bytes())),
     }
     Ok(())
 }
