@@ -379,6 +379,20 @@ impl Shading {
         }
     }
 
+    /// These settings in the mode with the most secondary rays a pixel (`fan`): what a live
+    /// view sizes its batches for, so that a client may switch to any mode.
+    pub fn widest_mode(self) -> Shading {
+        let mut widest = self;
+        for mode in [Mode::Cast, Mode::Shadows, Mode::Ao, Mode::Path] {
+            let mut s = self;
+            s.mode = mode;
+            if s.fan() > widest.fan() {
+                widest = s;
+            }
+        }
+        widest
+    }
+
     /// Secondary rays per pixel in one wave (0: no wave).
     pub fn fan(&self) -> u32 {
         match self.mode {

@@ -1,9 +1,9 @@
 //! The balancer role: answers the render ranks' `ASK`s from each frame's `Schedule`, and keeps
-//! the grants of every frame for the traces.
+//! the grants of every frame for the traces. A frame's image size comes with its first `ASK`
+//! (a live view changes it from frame to frame); every rank's must agree.
 
 use super::protocol::{Ask, Tag, Work, malformed};
 use super::schedule::Schedule;
-use super::startup::Image;
 use super::{Options, Roles};
 use crate::error::Result;
 use crate::gpu::frame::ms;
@@ -14,12 +14,12 @@ use std::time::Instant;
 /// The balancer's state over all frames.
 pub struct Balancer {
     roles: Roles,
+    /// The frames of the job; a live view's never end.
     frames: u32,
-    width: u32,
-    height: u32,
     tile: u32,
     min_tile: u32,
-    schedules: BTreeMap<u32, Schedule>,
+    /// Each open frame's schedule and image size.
+    schedules: BTreeMap<u32, (Schedule, (u32, u32))>,
     /// The last frame each render rank asked about, and the frames it was told are over.
     asked: Vec<Option<u32>>,
     ended: Vec<u32>,
@@ -29,13 +29,11 @@ pub struct Balancer {
 }
 
 impl Balancer {
-    pub fn new(roles: Roles, opts: &Options, image: Image) -> Balancer {
+    pub fn new(roles: Roles, opts: &Options) -> Balancer {
         let n = roles.render_ranks() as usize;
         Balancer {
             roles,
-            frames: opts.frames,
-            width: image.width,
-            height: image.height,
+            frames: if opts.live { u32::MAX } else { opts.frames },
             tile: opts.tile,
             min_tile: opts.min_tile,
             schedules: BTreeMap::new(),
@@ -64,12 +62,22 @@ impl Balancer {
                 format!("frame {frame} is over or beyond the last"),
             ));
         }
-        let (w, h, r) = (self.width, self.height, self.roles.render_ranks());
+        let (w, h, r) = (ask.width, ask.height, self.roles.render_ranks());
         let (tile, min) = (self.tile, self.min_tile);
-        let sched = self
+        let (sched, size) = self
             .schedules
             .entry(frame)
-            .or_insert_with(|| Schedule::new(w, h, r, tile, min));
+            .or_insert_with(|| (Schedule::new(w, h, r, tile, min), (w, h)));
+        if *size != (w, h) {
+            return Err(malformed(
+                Tag::Ask,
+                from,
+                format!(
+                    "frame {frame} at {w}x{h}, which another rank asked about at {}x{}",
+                    size.0, size.1
+                ),
+            ));
+        }
         let first = self.asked[i as usize] != Some(frame);
         self.asked[i as usize] = Some(frame);
         let (grant, kind) = if first {

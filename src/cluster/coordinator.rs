@@ -24,7 +24,7 @@ pub fn run(
     image: Image,
     legend: Option<crate::legend::Legend>,
 ) -> Result<()> {
-    let mut balancer = (rank == roles.balancer()).then(|| Balancer::new(roles, opts, image));
+    let mut balancer = (rank == roles.balancer()).then(|| Balancer::new(roles, opts));
     let mut display =
         (rank == Roles::DISPLAY).then(|| Display::new(roles, rank, opts, image, legend));
     let mut live = Liveness::new(roles.size, opts.timeout, Instant::now());
@@ -73,7 +73,8 @@ pub fn run(
             &mut balancer,
             &mut display,
         ) {
-            (Message::Alive, _, Some(_)) => {}
+            // From a busy render rank to the display; from a live view's waiting display.
+            (Message::Alive, _, _) => {}
             (Message::Ask(ask), Some(b), display) => {
                 let work = b.ask(from, ask)?;
                 send(world, from, Tag::Work, &work.encode());

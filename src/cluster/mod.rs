@@ -5,7 +5,8 @@
 //! own blocks and reads borrowed ones from their owners with one-sided MPI.
 //!
 //! `node` is one process from MPI set-up to the end: `startup` (open, agree), then
-//! `render_rank` or `coordinator` (`balancer` and `display`). `protocol` holds the messages,
+//! `render_rank` or `coordinator` (`balancer` and `display`), or in a live view `live` at the
+//! display. `protocol` holds the messages,
 //! `mailbox` sends and waits for them, `liveness` tells a working rank from a stopped one, `schedule` decides the tiles, `pixels` packs and
 //! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
 
@@ -25,6 +26,8 @@ mod display;
 mod display_bench;
 #[cfg(feature = "mpi")]
 mod failure;
+#[cfg(feature = "mpi")]
+pub mod live;
 #[cfg(feature = "mpi")]
 mod liveness;
 #[cfg(feature = "mpi")]
@@ -153,6 +156,9 @@ pub struct Options {
     /// not orbit, a tile traced once is sent again instead of traced again, so the display and
     /// the network set the frame rate; then MPI bandwidth to the display is measured.
     pub display_bench: bool,
+    /// A live view (`dcrt view` under mpirun): the display serves the frames its clients ask
+    /// for (`live`), one at a time, until the job is ended by a signal; `frames` is not used.
+    pub live: bool,
     /// Where rank 0 writes the run's figures as JSON (frame times, the render ranks'
     /// statistics, the display benchmark).
     pub stats: Option<PathBuf>,
@@ -167,7 +173,7 @@ pub struct Options {
 pub fn run(opts: &Options) -> Result<()> {
     #[cfg(feature = "mpi")]
     {
-        node::run(opts)
+        node::run(opts, None)
     }
     #[cfg(not(feature = "mpi"))]
     {
@@ -176,6 +182,24 @@ pub fn run(opts: &Options) -> Result<()> {
             "started by an MPI launcher, but this dcrt was built without the `mpi` feature".into(),
         ))
     }
+}
+
+/// What serves a live view at the display rank: it makes frames with the `LiveDisplay` for as
+/// long as the view runs.
+#[cfg(feature = "mpi")]
+pub type Serve<'s> = dyn FnMut(&mut live::LiveDisplay<'_>) -> Result<()> + 's;
+
+/// Runs this process's role of a live view (`dcrt view` under mpirun): `serve` at the display
+/// rank, with the `live::LiveDisplay` that makes its frames; it returns only on an error, which
+/// ends the job.
+#[cfg(feature = "mpi")]
+pub fn view(opts: &Options, serve: &mut Serve<'_>) -> Result<()> {
+    if !opts.live {
+        return Err(Error::Internal(
+            "a live view's options without `live`".into(),
+        ));
+    }
+    node::run(opts, Some(serve))
 }
 
 #[cfg(test)]

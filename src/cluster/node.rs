@@ -2,8 +2,9 @@
 //! (docs/ARCHITECTURE.md, Cluster). Only the main thread calls MPI (`Threading::Funneled`).
 
 use super::failure::Failure;
+use super::live::LiveDisplay;
 use super::startup::{self, Role};
-use super::{Options, Roles, clock, coordinator, render_rank, rma};
+use super::{Options, Roles, Serve, clock, coordinator, render_rank, rma};
 use crate::error::{Error, Result};
 use mpi::Threading;
 use mpi::topology::Color;
@@ -11,7 +12,8 @@ use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use std::time::{Duration, Instant};
 
-pub fn run(opts: &Options) -> Result<()> {
+/// Runs this process's role; `serve` at the display of a live view (`Options::live`).
+pub fn run(opts: &Options, serve: Option<&mut Serve<'_>>) -> Result<()> {
     let (universe, _) = mpi::initialize_with_threading(Threading::Funneled)
         .ok_or_else(|| Error::Mpi("MPI is already initialised".into()))?;
     let world = universe.world();
@@ -40,6 +42,11 @@ pub fn run(opts: &Options) -> Result<()> {
     clock::agree(&world);
     let result = match (opened.role, render_comm) {
         (Role::Render(r), Some(comm)) => render_rank::run(&world, &comm, roles, rank, opts, *r),
+        (Role::Coordinator, _) if opts.live && rank == Roles::DISPLAY => match serve {
+            Some(serve) => LiveDisplay::start(&world, roles, opts, opened.image, opened.shading)
+                .and_then(|mut d| serve(&mut d)),
+            None => Err(Error::Internal("a live view without a server".into())),
+        },
         (Role::Coordinator, _) => {
             coordinator::run(&world, roles, rank, opts, opened.image, opened.legend)
         }

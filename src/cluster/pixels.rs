@@ -61,6 +61,14 @@ impl Packer {
         }
     }
 
+    /// How the pixels of the next frame travel (a live view's frames differ): called between
+    /// frames, when the last message has been flushed.
+    pub fn set_wire(&mut self, wire: Wire) {
+        assert!(self.buf.is_empty(), "the wire changes between frames");
+        self.wire = wire;
+        self.target = self.target.max(FRAME_HEADER + RECORD + 64 * wire.bytes());
+    }
+
     /// Adds the `rect.w * rect.h` pixels of `rect` (row-major) of frame `frame`; returns the
     /// messages that filled up.
     pub fn push(&mut self, frame: u32, rect: Rect, pixels: &[Pixel]) -> Vec<Vec<u8>> {

@@ -8,6 +8,11 @@
 //!   keeps the order of messages between two ranks.
 //! - the display writes frame f once every render rank's `DONE(f)` is in and every pixel copied.
 //! - after the frames of the display benchmark, `BANDWIDTH` messages measure the link.
+//! - in a live view (`dcrt view` under mpirun) the display sends each render rank a `JOB(f)`
+//!   before frame f (its size, camera and samples: the frames are not known in advance), and
+//!   while no frame is being made an empty `ALIVE` to every rank every quarter of the timeout.
+//!   Before any, the first render rank sends the display `HOME`: the model's camera (JSON),
+//!   which the display, which does not read the model, shows first.
 //! - a render rank busy on its GPU sends an empty `ALIVE` to the display and the balancer every
 //!   quarter of the job's timeout, so that they can tell a rank that works from one that has
 //!   stopped (docs/ARCHITECTURE.md, Cluster).
@@ -38,16 +43,20 @@ pub enum Tag {
     Done = 4,
     Bandwidth = 5,
     Alive = 6,
+    Job = 7,
+    Home = 8,
 }
 
 impl Tag {
-    pub const ALL: [Tag; 6] = [
+    pub const ALL: [Tag; 8] = [
         Tag::Ask,
         Tag::Work,
         Tag::Pixels,
         Tag::Done,
         Tag::Bandwidth,
         Tag::Alive,
+        Tag::Job,
+        Tag::Home,
     ];
 
     pub fn raw(self) -> i32 {
@@ -66,6 +75,8 @@ impl Tag {
             Tag::Done => "DONE",
             Tag::Bandwidth => "BANDWIDTH",
             Tag::Alive => "ALIVE",
+            Tag::Job => "JOB",
+            Tag::Home => "HOME",
         }
     }
 }
@@ -89,22 +100,70 @@ fn read_words(tag: Tag, from: u32, b: &[u8]) -> Result<Vec<u32>> {
     Ok(bytemuck::pod_collect_to_vec(b))
 }
 
-/// A render rank asks the balancer for work in `frame`.
+/// A render rank asks the balancer for work in `frame`, whose image is `width` x `height` (a
+/// live view changes it from frame to frame).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Ask {
     pub frame: u32,
+    pub width: u32,
+    pub height: u32,
 }
 
 impl Ask {
     pub fn encode(&self) -> Vec<u8> {
-        words(&[self.frame])
+        words(&[self.frame, self.width, self.height])
     }
 
     pub fn decode(from: u32, msg: &[u8]) -> Result<Ask> {
         match read_words(Tag::Ask, from, msg)?[..] {
-            [frame] => Ok(Ask { frame }),
+            [frame, width, height] if width > 0 && height > 0 => Ok(Ask {
+                frame,
+                width,
+                height,
+            }),
             ref w => Err(malformed(Tag::Ask, from, format!("{w:?}"))),
         }
+    }
+}
+
+/// The display's order to render frame `frame` of a live view: its size, camera and samples
+/// (`mode`, and `Shading`'s `first_sample`, `spp` and `part_of_spp`; the rest of the shading is
+/// what every rank agreed on at start-up), and whether its pixels travel whole (`Wire::Full`,
+/// for sums of sample passes at the display) or as RGB8.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Job {
+    pub frame: u32,
+    pub width: u32,
+    pub height: u32,
+    pub camera: crate::scene::Camera,
+    pub mode: crate::shading::Mode,
+    pub first_sample: u32,
+    pub spp: u32,
+    pub part_of_spp: Option<u32>,
+    pub whole_pixels: bool,
+}
+
+impl Job {
+    /// The frame number, then the job as JSON.
+    pub fn encode(&self) -> Result<Vec<u8>> {
+        let mut msg = words(&[self.frame]);
+        serde_json::to_writer(&mut msg, self)
+            .map_err(|e| Error::Internal(format!("frame job: {e}")))?;
+        Ok(msg)
+    }
+
+    pub fn decode(from: u32, msg: &[u8]) -> Result<Job> {
+        let bad = |why: String| malformed(Tag::Job, from, why);
+        let frame = message_frame(msg).ok_or_else(|| bad(format!("{} bytes", msg.len())))?;
+        let job: Job = serde_json::from_slice(&msg[4..]).map_err(|e| bad(e.to_string()))?;
+        if job.frame != frame || job.width == 0 || job.height == 0 {
+            return Err(bad(format!(
+                "frame {} of {}x{} in a message for frame {frame}",
+                job.frame, job.width, job.height
+            )));
+        }
+        Ok(job)
     }
 }
 
@@ -155,8 +214,10 @@ impl Work {
 pub struct FrameReport<S = ReportStats> {
     pub frame: u32,
     pub rank: u32,
-    /// Tiles traced, and the pixel messages and bytes they took.
+    /// Tiles traced, their pixels, and the pixel messages and bytes they took.
     pub tiles: u64,
+    #[serde(default)]
+    pub pixels: u64,
     pub messages: u32,
     pub bytes: u64,
     pub stats: S,
@@ -228,8 +289,11 @@ pub enum Message {
     },
     Done(FrameReport),
     Bandwidth(Vec<u8>),
-    /// A render rank is busy on its GPU (no payload).
+    /// A render rank is busy on its GPU, or a live view's display waits for its user (no
+    /// payload).
     Alive,
+    Job(Job),
+    Home(crate::scene::Camera),
 }
 
 impl Message {
@@ -250,6 +314,11 @@ impl Message {
             },
             Tag::Done => Message::Done(FrameReport::decode(from, &bytes)?),
             Tag::Bandwidth => Message::Bandwidth(bytes),
+            Tag::Job => Message::Job(Job::decode(from, &bytes)?),
+            Tag::Home => Message::Home(
+                serde_json::from_slice(&bytes)
+                    .map_err(|e| malformed(Tag::Home, from, e.to_string()))?,
+            ),
             Tag::Alive if bytes.is_empty() => Message::Alive,
             Tag::Alive => {
                 return Err(malformed(
@@ -269,6 +338,8 @@ impl Message {
             Message::Done(_) => Tag::Done,
             Message::Bandwidth(_) => Tag::Bandwidth,
             Message::Alive => Tag::Alive,
+            Message::Job(_) => Tag::Job,
+            Message::Home(_) => Tag::Home,
         }
     }
 }
@@ -296,8 +367,12 @@ mod tests {
 
     #[test]
     fn ask_and_work_round_trip() {
-        let ask = Ask { frame: 7 };
-        assert_eq!(ask.encode(), 7u32.to_le_bytes());
+        let ask = Ask {
+            frame: 7,
+            width: 64,
+            height: 48,
+        };
+        assert_eq!(ask.encode(), words(&[7, 64, 48]));
         match Message::decode(Tag::Ask.raw(), 3, ask.encode()).unwrap() {
             Message::Ask(a) => assert_eq!(a, ask),
             m => panic!("{m:?}"),
@@ -325,6 +400,8 @@ mod tests {
         assert!(e.contains("ASK message from rank 4"), "{e}");
         let e = protocol_error(Message::decode(Tag::Ask.raw(), 4, vec![0; 8]));
         assert!(e.contains("ASK message from rank 4"), "{e}");
+        let e = protocol_error(Message::decode(Tag::Ask.raw(), 4, words(&[1, 0, 8])));
+        assert!(e.contains("ASK message from rank 4: [1, 0, 8]"), "{e}");
         let e = protocol_error(Message::decode(
             Tag::Work.raw(),
             1,
@@ -343,8 +420,51 @@ mod tests {
             Message::decode(Tag::Alive.raw(), 3, vec![]),
             Ok(Message::Alive)
         ));
+        let mut job = words(&[3]);
+        job.extend(b"{\"frame\": 3}");
+        let e = protocol_error(Message::decode(Tag::Job.raw(), 0, job));
+        assert!(e.contains("JOB message from rank 0"), "{e}");
+        let e = protocol_error(Message::decode(Tag::Home.raw(), 2, b"{}".to_vec()));
+        assert!(e.contains("HOME message from rank 2"), "{e}");
         let e = protocol_error(Message::decode(9, 2, vec![]));
         assert!(e.contains("(tag 9) from rank 2"), "{e}");
+    }
+
+    #[test]
+    fn jobs_round_trip_and_say_what_is_wrong() {
+        let job = Job {
+            frame: 4,
+            width: 32,
+            height: 24,
+            camera: crate::scene::Camera {
+                position: [0.0, -2.0, 0.5],
+                focal_point: [0.0; 3],
+                view_up: [0.0, 0.0, 1.0],
+                view_angle: 30.0,
+                parallel_scale: None,
+            },
+            mode: crate::shading::Mode::Ao,
+            first_sample: 2,
+            spp: 1,
+            part_of_spp: Some(8),
+            whole_pixels: true,
+        };
+        let msg = job.encode().unwrap();
+        assert_eq!(message_frame(&msg), Some(4));
+        match Message::decode(Tag::Job.raw(), 0, msg.clone()).unwrap() {
+            Message::Job(j) => assert_eq!(j, job),
+            m => panic!("{m:?}"),
+        }
+        let mut other = msg.clone();
+        other[0] = 5;
+        let e = protocol_error(Message::decode(Tag::Job.raw(), 0, other));
+        assert!(
+            e.contains("JOB message from rank 0: frame 4 of 32x24 in a message for frame 5"),
+            "{e}"
+        );
+        let empty = Job { width: 0, ..job }.encode().unwrap();
+        let e = protocol_error(Message::decode(Tag::Job.raw(), 0, empty));
+        assert!(e.contains("frame 4 of 0x24"), "{e}");
     }
 
     /// The render rank sends `FrameStats`; the display reads `ReportStats`, and writes back every
@@ -363,6 +483,7 @@ mod tests {
             frame: 2,
             rank: 3,
             tiles: 5,
+            pixels: 320,
             messages: 4,
             bytes: 1000,
             stats: &stats,

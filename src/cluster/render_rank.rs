@@ -6,7 +6,7 @@ use super::failure::Failure;
 use super::liveness::Heartbeat;
 use super::mailbox::{poll_from, send, wait_from};
 use super::pixels::{Packer, Wire};
-use super::protocol::{Ask, FrameReport, Tag, Work, malformed};
+use super::protocol::{Ask, FrameReport, Job, Tag, Work, malformed};
 use super::startup::RenderSetup;
 use super::{Options, Roles, rma};
 use crate::blocks::ranks::Ranks;
@@ -17,7 +17,8 @@ use crate::gpu::frame::{FrameStats, Rect, ms};
 use crate::gpu::layout::Pixel;
 use crate::gpu::scheduler::{Next, RectSource};
 use crate::gpu::tracer::{DcSetup, Tracer};
-use crate::render::frames::{FrameBody, FrameCtx, FramePlan, Role, View, run_frames};
+use crate::render::frames::{FrameBody, FrameCtx, FramePlan, Role, View, run_frame, run_frames};
+use crate::shading::Shading;
 use crate::traces::record::{Event, FrameTrace, Tile};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
@@ -98,6 +99,7 @@ pub fn run(
     } = setup;
     let format = loaded.format();
     let bw = format.words() as usize;
+    let base = settings.shading;
     let mut tracer: Tracer<'_> = match dc {
         None => {
             crate::report!(
@@ -186,6 +188,14 @@ pub fn run(
         },
         trace_dir: opts.trace.as_deref(),
     };
+    if opts.live {
+        if roles.render_index(rank) == Some(0) {
+            let home = serde_json::to_vec(&loaded.camera)
+                .map_err(|e| Error::Internal(format!("the model's camera: {e}")));
+            send(world, Roles::DISPLAY, Tag::Home, &or_abort(rank, home));
+        }
+        or_abort(rank, me.live_frames(&mut tracer, &plan, base));
+    }
     or_abort(rank, run_frames(&mut tracer, &plan, &mut me));
     if opts.display_bench {
         // Only once the display has every frame: the stream must not mix with pixels.
@@ -224,6 +234,61 @@ struct RenderRank<'a> {
     failure: Failure,
     /// What the frame being rendered sent, for its report.
     sent: Sent,
+}
+
+impl RenderRank<'_> {
+    /// A live view's frames: each `JOB` of the display rendered as it says, for as long as the
+    /// job runs (a signal ends it: mpirun ends every rank).
+    fn live_frames(
+        &mut self,
+        tracer: &mut Tracer<'_>,
+        plan: &FramePlan<'_>,
+        base: Shading,
+    ) -> Result<std::convert::Infallible> {
+        loop {
+            let job = self.next_job()?;
+            self.size = (job.width, job.height);
+            self.packer.set_wire(match job.whole_pixels {
+                true => Wire::Full,
+                false => Wire::Rgb8,
+            });
+            tracer.set_shading(Shading {
+                mode: job.mode,
+                spp: job.spp,
+                first_sample: job.first_sample,
+                part_of_spp: job.part_of_spp,
+                ..base
+            })?;
+            run_frame(tracer, plan, job.frame, job.camera, self)?;
+        }
+    }
+
+    /// Waits for the display's next `JOB`. While its user only looks, the display says `ALIVE`
+    /// every quarter of the timeout; silence for the whole timeout ends the job.
+    fn next_job(&self) -> Result<Job> {
+        let display = Roles::DISPLAY;
+        let mut heard = Instant::now();
+        loop {
+            if let Some(msg) = poll_from(self.world, display, Tag::Job) {
+                return Job::decode(display, &msg);
+            }
+            if poll_from(self.world, display, Tag::Alive).is_some() {
+                heard = Instant::now();
+                continue;
+            }
+            if heard.elapsed() > self.opts.timeout {
+                return Err(Error::Timeout {
+                    what: format!(
+                        "word from rank {display} (display), which rank {} waits for,",
+                        self.rank
+                    ),
+                    seconds: self.opts.timeout.as_secs_f64(),
+                    likely: Some("it has stopped, hung or died"),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
 }
 
 /// A frame's tiles as the tracer takes them: asked of the balancer one ahead, so that the answer
@@ -293,6 +358,7 @@ impl RankTiles<'_, '_> {
         let r = &mut *self.rank;
         let t0 = handed.max(self.last_end);
         let t1 = r.start.elapsed().max(t0);
+        self.sent.pixels += u64::from(rect.w) * u64::from(rect.h);
         for m in r.packer.push_encoded(self.frame, rect, encoded) {
             self.sent.bytes += m.len() as u64;
             self.sent.messages += 1;
@@ -363,6 +429,7 @@ impl RectSource for RankTiles<'_, '_> {
 #[derive(Default)]
 struct Sent {
     events: Vec<Event>,
+    pixels: u64,
     messages: u32,
     bytes: u64,
 }
@@ -379,7 +446,12 @@ impl FrameBody for RenderRank<'_> {
         let basis = camera.basis(self.size.0, self.size.1);
         let background = self.background;
         let balancer = self.roles.balancer();
-        let ask = Ask { frame }.encode();
+        let ask = Ask {
+            frame,
+            width: self.size.0,
+            height: self.size.1,
+        }
+        .encode();
         send(self.world, balancer, Tag::Ask, &ask);
         let mut tiles = RankTiles {
             rank: self,
@@ -411,6 +483,7 @@ impl FrameBody for RenderRank<'_> {
             frame,
             rank: self.rank,
             tiles: sent.events.len() as u64,
+            pixels: sent.pixels,
             messages: sent.messages,
             bytes: sent.bytes,
             stats,

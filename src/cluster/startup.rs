@@ -25,6 +25,8 @@ pub struct Image {
 /// What a rank opened before the agreement.
 pub struct Opened {
     pub image: Image,
+    /// The scene's shading with the command line's changes, as every rank applies them.
+    pub shading: Shading,
     /// What every rank must agree on, as `Report` words.
     report: Report,
     pub role: Role,
@@ -156,6 +158,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     let Some(index) = roles.render_index(rank) else {
         return Ok(Opened {
             image,
+            shading,
             report,
             role: Role::Coordinator,
             legend,
@@ -185,17 +188,25 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
     report[MESHES] = digest(&(&loaded.meshes, loaded.depth, loaded.triangles));
     Ok(Opened {
         image,
+        shading,
         report,
         legend,
         role: Role::Render(Box::new(RenderSetup {
             loaded,
             gpu,
             dc,
+            // A live view's batches are sized for any mode a client may switch to.
             settings: Settings {
                 shading,
-                ..opts.settings
-            }
-            .for_image(image.width, image.height),
+                ..Settings {
+                    shading: match opts.live {
+                        true => shading.widest_mode(),
+                        false => shading,
+                    },
+                    ..opts.settings
+                }
+                .for_image(image.width, image.height)
+            },
         })),
     })
 }

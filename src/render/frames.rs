@@ -111,23 +111,36 @@ pub fn run_frames(
 ) -> Result<()> {
     for frame in 0..plan.frames {
         let camera = plan.view.camera(frame, plan.frames);
-        let started = crate::traces::record::ms_since_epoch(std::time::Instant::now());
-        let mut stats = tracer.begin_frame();
-        body.trace(FrameCtx {
-            frame,
-            camera,
-            tracer: &mut *tracer,
-            stats: &mut stats,
-        })?;
-        tracer.end_frame(&mut stats)?;
-        let mut trace = tracer.take_trace();
-        let cache = tracer.cache().map(|(_, lines, map)| (lines, map));
-        trace.summary = summarize(&stats, cache, frame, plan.role);
-        trace.summary.start_ms = Some(started);
-        body.finish(frame, &stats, &mut trace)?;
-        if let Some(dir) = plan.trace_dir {
-            trace.write(dir)?;
-        }
+        run_frame(tracer, plan, frame, camera, body)?;
+    }
+    Ok(())
+}
+
+/// Frame `frame` of `plan` with `camera`: one turn of `run_frames`, for a caller that learns its
+/// frames one at a time (a render rank of a live view).
+pub fn run_frame(
+    tracer: &mut Tracer<'_>,
+    plan: &FramePlan<'_>,
+    frame: u32,
+    camera: Camera,
+    body: &mut dyn FrameBody,
+) -> Result<()> {
+    let started = crate::traces::record::ms_since_epoch(std::time::Instant::now());
+    let mut stats = tracer.begin_frame();
+    body.trace(FrameCtx {
+        frame,
+        camera,
+        tracer: &mut *tracer,
+        stats: &mut stats,
+    })?;
+    tracer.end_frame(&mut stats)?;
+    let mut trace = tracer.take_trace();
+    let cache = tracer.cache().map(|(_, lines, map)| (lines, map));
+    trace.summary = summarize(&stats, cache, frame, plan.role);
+    trace.summary.start_ms = Some(started);
+    body.finish(frame, &stats, &mut trace)?;
+    if let Some(dir) = plan.trace_dir {
+        trace.write(dir)?;
     }
     Ok(())
 }

@@ -1,18 +1,20 @@
-//! `dcrt view` (docs/ARCHITECTURE.md, Live view): the frames of one process in a browser as they
-//! are made, the camera under the user's hand. Three kinds of thread: the caller's, which owns
-//! the tracer and renders (`producer`); an encoder, which turns the newest frame into JPEG; the
-//! server's (`server`, axum on tokio), which serve the page, the API and the WebSockets. They
-//! share only `state::Shared`, where each thing is kept in its newest version.
+//! `dcrt view` (docs/ARCHITECTURE.md, Live view): the frames in a browser as they are made, the
+//! camera under the user's hand, from one process or from the display rank of an mpirun job.
+//! Three kinds of thread: the caller's, which makes the frames (`producer`, through the tracer
+//! it owns or the render ranks, `cluster`); an encoder, which turns the newest frame into JPEG;
+//! the server's (`server`, axum on tokio), which serve the page, the API and the WebSockets.
+//! They share only `state::Shared`, where each thing is kept in its newest version.
 
 pub mod camera;
+#[cfg(feature = "mpi")]
+mod cluster;
 mod producer;
 pub mod server;
 pub mod state;
 
-pub use producer::{Still, TARGET_FPS};
+pub use producer::{Figures, Frames, Made, OneProcess, Share, Still, TARGET_FPS};
 
 use crate::error::{Error, Result};
-use crate::gpu::tracer::Tracer;
 use crate::scene::Camera;
 use state::{LiveFrame, Shared, Wish};
 use std::net::{IpAddr, SocketAddr};
@@ -46,10 +48,11 @@ pub fn url(addr: SocketAddr, token: Option<&str>) -> String {
     format!("http://{addr}/{q}")
 }
 
-/// Serves the view and renders on this thread (which owns `tracer`) until an error; a signal ends
-/// the process (`files::remove_on_interrupt`). `listening` is told the URL once the port is open.
+/// Serves the view and makes its frames on this thread (which owns the tracer, or at the display
+/// rank the MPI calls) until an error; a signal ends the process (`files::remove_on_interrupt`).
+/// `listening` is told the URL once the port is open.
 pub fn run(
-    tracer: &mut Tracer<'_>,
+    frames: &mut dyn Frames,
     opts: &Options,
     still: &Still,
     listening: &mut dyn FnMut(&str, SocketAddr),
@@ -92,7 +95,7 @@ pub fn run(
         .spawn(move || encode_frames(&enc))
         .map_err(|e| Error::Internal(format!("cannot start the encoder thread: {e}")))?;
     listening(&url(addr, token.as_deref()), addr);
-    producer::produce(tracer, &shared, still)
+    producer::produce(frames, &shared, still)
 }
 
 /// The encoder thread: the newest frame to JPEG, for every page.

@@ -5,7 +5,7 @@
 use crate::scene::Camera;
 use crate::shading::Mode;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::sync::watch;
 
 /// After an interactive camera, how long without a newer one before the view counts as at rest
@@ -85,8 +85,14 @@ pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The newest wish and when it came.
+struct Newest {
+    wish: Wish,
+    at: Instant,
+}
+
 pub struct Shared {
-    wish: Mutex<Wish>,
+    wish: Mutex<Newest>,
     changed: Condvar,
     /// The newest frame of any kind, for the page.
     pub live: watch::Sender<Option<Arc<LiveFrame>>>,
@@ -107,7 +113,10 @@ pub struct Shared {
 impl Shared {
     pub fn new(first: Wish, token: Option<String>, max_spp: u32) -> Arc<Shared> {
         Arc::new(Shared {
-            wish: Mutex::new(first),
+            wish: Mutex::new(Newest {
+                wish: first,
+                at: Instant::now(),
+            }),
             changed: Condvar::new(),
             live: watch::Sender::new(None),
             still: watch::Sender::new(None),
@@ -120,48 +129,71 @@ impl Shared {
     }
 
     pub fn wish(&self) -> Wish {
-        *lock(&self.wish)
+        lock(&self.wish).wish
     }
 
     /// Changes the wish with `f` and gives it the next number, which it returns.
     pub fn change(&self, f: impl FnOnce(&mut Wish)) -> u64 {
-        let mut w = lock(&self.wish);
-        f(&mut w);
-        w.seq += 1;
+        let mut n = lock(&self.wish);
+        f(&mut n.wish);
+        n.wish.seq += 1;
+        n.at = Instant::now();
         self.changed.notify_all();
-        w.seq
+        n.wish.seq
     }
 
-    /// The GPU thread's next job: the wish and whether to render it at rest (full size, every
+    /// The next frame to make: the wish and whether to render it at rest (full size, every
     /// sample). Waits while the newest wish is `done` (finished). An interactive wish already
-    /// `drawn` at reduced size counts as at rest after `REST` without a newer one.
-    pub fn next_job(&self, done: Option<u64>, drawn: Option<u64>) -> (Wish, bool) {
-        let mut w = lock(&self.wish);
+    /// `drawn` at reduced size counts as at rest once `REST` passed since it came without a
+    /// newer one. With a `slice`, waits at most that long and then says `None` (a display rank
+    /// has work between frames).
+    pub fn next_job(
+        &self,
+        done: Option<u64>,
+        drawn: Option<u64>,
+        slice: Option<Duration>,
+    ) -> Option<(Wish, bool)> {
+        let start = Instant::now();
+        let mut n = lock(&self.wish);
         loop {
+            let w = n.wish;
+            // How long to wait for a newer wish; `None`: until one comes.
+            let mut wait = None;
             if Some(w.seq) != done {
                 if !w.interactive {
-                    return (*w, true);
+                    return Some((w, true));
                 }
                 if Some(w.seq) != drawn {
-                    return (*w, false);
+                    return Some((w, false));
                 }
-                let (g, timeout) = self
-                    .changed
-                    .wait_timeout(w, REST)
-                    .unwrap_or_else(|e| e.into_inner());
-                w = g;
-                if timeout.timed_out() && Some(w.seq) == drawn {
-                    return (*w, true);
+                let quiet = n.at.elapsed();
+                if quiet >= REST {
+                    return Some((w, true));
                 }
-                continue;
+                wait = Some(REST - quiet);
             }
-            w = self.changed.wait(w).unwrap_or_else(|e| e.into_inner());
+            if let Some(slice) = slice {
+                let left = slice.saturating_sub(start.elapsed());
+                if left.is_zero() {
+                    return None;
+                }
+                wait = Some(wait.map_or(left, |d: Duration| d.min(left)));
+            }
+            n = match wait {
+                None => self.changed.wait(n).unwrap_or_else(|e| e.into_inner()),
+                Some(d) => {
+                    self.changed
+                        .wait_timeout(n, d)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0
+                }
+            };
         }
     }
 
     /// Whether a wish newer than `seq` came.
     pub fn superseded(&self, seq: u64) -> bool {
-        lock(&self.wish).seq != seq
+        lock(&self.wish).wish.seq != seq
     }
 }
 
@@ -199,13 +231,23 @@ mod tests {
     fn jobs_follow_the_wishes() {
         let s = Shared::new(wish(), None, 16);
         // The first wish at rest.
-        assert_eq!(s.next_job(None, None), (wish(), true));
+        assert_eq!(s.next_job(None, None, None), Some((wish(), true)));
+        // Finished: nothing to do within a slice.
+        let slice = Some(Duration::from_millis(20));
+        assert_eq!(s.next_job(Some(0), None, slice), None);
         let seq = s.change(|w| w.interactive = true);
         assert_eq!(seq, 1);
-        // A drag: reduced first, then at rest once nothing newer came.
-        let (w, still) = s.next_job(Some(0), None);
+        // A drag: reduced first, then at rest once nothing newer came for `REST`, however the
+        // waits are sliced.
+        let (w, still) = s.next_job(Some(0), None, None).unwrap();
         assert_eq!((w.seq, still), (1, false));
-        let (w, still) = s.next_job(Some(0), Some(1));
+        assert_eq!(s.next_job(Some(0), Some(1), slice), None, "not yet at rest");
+        // (Were the rest counted from each wait, this would never end: every slice is shorter.)
+        let (w, still) = loop {
+            if let Some(job) = s.next_job(Some(0), Some(1), slice) {
+                break job;
+            }
+        };
         assert_eq!((w.seq, still), (1, true));
         assert!(!s.superseded(1));
         s.change(|w| w.interactive = false);

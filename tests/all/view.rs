@@ -1,7 +1,8 @@
 //! `dcrt view` (docs/ARCHITECTURE.md, Live view) through its protocol, without a browser: the
 //! camera's round trip, the still frame equal to `dcrt render`'s to the pixel, refinement up to
 //! the requested samples, malformed requests refused without harm, the token off loopback, a
-//! signal ending it; and the page in a headless Chromium (tests/view_browser.py).
+//! signal ending it, all of it under mpirun with a distributed cache too; and the page in a
+//! headless Chromium (tests/view_browser.py), from one process and from mpirun's display rank.
 
 use crate::common::{TempDir, dcrt};
 use std::io::{BufRead, BufReader, Read, Write};
@@ -29,11 +30,36 @@ struct View {
 
 impl View {
     fn start(scene: &Path, args: &[&str]) -> View {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_dcrt"))
-            .arg("view")
-            .arg(scene)
-            .args(["--port", "0"])
-            .args(args)
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_dcrt"));
+        cmd.arg("view").arg(scene).args(["--port", "0"]).args(args);
+        View::spawn(cmd)
+    }
+
+    /// `mpirun -n k dcrt view ...` under `timeout` (which passes a SIGTERM on to mpirun, and
+    /// mpirun to every rank).
+    fn mpirun(k: u32, scene: &Path, args: &[&str]) -> View {
+        let mut cmd = Command::new("timeout");
+        cmd.args([
+            "-k",
+            "5",
+            "600",
+            "mpirun",
+            "--oversubscribe",
+            "-n",
+            &k.to_string(),
+        ])
+        .arg(env!("CARGO_BIN_EXE_dcrt"))
+        .arg("view")
+        .arg(scene)
+        .args(["--port", "0", "--timeout", "60"])
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+        View::spawn(cmd)
+    }
+
+    fn spawn(mut cmd: Command) -> View {
+        let mut child = cmd
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
@@ -105,8 +131,14 @@ impl View {
 }
 
 impl Drop for View {
+    /// SIGTERM first, so that `timeout` passes it on to an mpirun; then SIGKILL.
     fn drop(&mut self) {
-        let _ = self.child.kill();
+        let _ = Command::new("kill")
+            .arg(self.child.id().to_string())
+            .status();
+        if wait_bounded(&mut self.child, Duration::from_secs(20)).is_none() {
+            let _ = self.child.kill();
+        }
         let _ = self.child.wait();
     }
 }
@@ -400,6 +432,21 @@ fn wait_bounded(child: &mut Child, limit: Duration) -> Option<std::process::Exit
 /// not installed; with Chromium but without the venv it fails.
 #[test]
 fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
+    let d = TempDir::new("view-browser");
+    let scene = scene(&d);
+    in_chromium(|| View::start(&scene, &[]));
+}
+
+/// The same page served by the display rank of `mpirun -n 4` with a distributed cache.
+#[test]
+fn the_page_under_mpirun_shows_frames_and_turns_the_camera() {
+    let d = TempDir::new("view-browser-mpirun");
+    let scene = scene(&d);
+    in_chromium(|| View::mpirun(4, &scene, &["--cache", "1/2"]));
+}
+
+/// Runs tests/view_browser.py against the view `start` starts, where Chromium is installed.
+fn in_chromium(start: impl FnOnce() -> View) {
     let which = |name: &str| {
         std::env::var_os("PATH").and_then(|paths| {
             std::env::split_paths(&paths)
@@ -420,9 +467,7 @@ fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
         "{} is missing: run scripts/setup.sh (it makes the venv with selenium)",
         python.display()
     );
-    let d = TempDir::new("view-browser");
-    let scene = scene(&d);
-    let v = View::start(&scene, &[]);
+    let v = start();
     let mut child = Command::new(&python)
         .arg(crate::common::repo().join("tests/view_browser.py"))
         .arg(&v.url)
@@ -565,4 +610,57 @@ fn distributed_cache_still_frame_equals_render() {
     assert!(stats["fetched_mib"].as_f64().unwrap() > 0.0, "{stats}");
     let rate = stats["hit_rate"].as_f64().unwrap();
     assert!(rate > 0.0 && rate < 1.0, "{stats}");
+}
+
+/// Under mpirun (4 ranks: display, balancer, 2 render ranks with a distributed cache of 1/2):
+/// the still frame of a posted camera, refined over 3 sample passes, is `dcrt render`'s in one
+/// process; the statistics name both render ranks, whose parts cover the frame, and count the
+/// cache's fetches; a frame while moving comes at reduced size; SIGTERM to mpirun ends every
+/// rank.
+#[test]
+fn under_mpirun_the_display_rank_serves_frames_equal_to_render() {
+    let d = TempDir::new("view-mpirun");
+    let scene = scene(&d);
+    let mut v = View::mpirun(4, &scene, &["--cache", "1/2", "--mode", "ao", "--spp", "3"]);
+    let first = v.get_json("/camera");
+    let c = moved(&first);
+    let seq = v.post_camera(&c);
+    let frame = v.frame(seq);
+    assert_same(
+        &frame,
+        &render(&d, &scene, &c, &["--mode", "ao", "--spp", "3"]),
+        "mpirun, ao, 3 passes",
+    );
+    let stats = v.get_json("/stats");
+    assert_eq!(stats["spp_reached"].as_u64(), Some(3), "{stats}");
+    assert_eq!(stats["render_ranks"].as_u64(), Some(2), "{stats}");
+    let ranks = stats["last"]["ranks"].as_array().unwrap();
+    let ids: Vec<u64> = ranks.iter().map(|r| r["rank"].as_u64().unwrap()).collect();
+    assert_eq!(ids, [2, 3], "{stats}");
+    let pixels: u64 = ranks.iter().map(|r| r["pixels"].as_u64().unwrap()).sum();
+    assert_eq!(pixels, 64 * 48, "{stats}");
+    assert!(stats["fetched_mib"].as_f64().unwrap() > 0.0, "{stats}");
+    // A moving camera over the WebSocket: a reduced frame of it.
+    let mut ws = socket(v.port);
+    let turned = serde_json::json!({"camera": moved(&c), "interactive": true});
+    ws.send(tungstenite::Message::text(turned.to_string()))
+        .unwrap();
+    let moving = loop {
+        if let Got::Frame(i, _) = next(&mut ws)
+            && i["seq"].as_u64().unwrap() > seq
+        {
+            break i;
+        }
+    };
+    assert_eq!(moving["full"], false, "{moving}");
+    assert!(moving["width"].as_u64().unwrap() <= 64, "{moving}");
+    drop(ws);
+    // SIGTERM to mpirun (through timeout): every rank ends.
+    let ok = Command::new("kill")
+        .arg(v.child.id().to_string())
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let status = wait_bounded(&mut v.child, ANSWER);
+    assert!(status.is_some(), "mpirun did not end on SIGTERM");
 }

@@ -71,6 +71,10 @@ pub struct RenderArgs {
     dc: DcArgs,
     #[command(flatten)]
     cluster: ClusterArgs,
+    /// Under mpirun: write the run's figures (frame times, per-rank statistics) as JSON to this
+    /// file.
+    #[arg(long)]
+    stats: Option<PathBuf>,
 }
 
 /// Options of cluster mode (under mpirun or srun with 2 ranks or more).
@@ -78,29 +82,40 @@ pub struct RenderArgs {
 pub struct ClusterArgs {
     /// Threads the display copies received pixels into the frame with.
     #[arg(long, default_value_t = 2)]
-    copy_threads: u32,
+    pub copy_threads: u32,
     /// Side in pixels of the balancer's large tiles.
     #[arg(long, default_value_t = 128)]
-    tile: u32,
+    pub tile: u32,
     /// Side of the smallest tiles the balancer splits them into toward the end of a frame.
     #[arg(long, default_value_t = 16)]
-    min_tile: u32,
+    pub min_tile: u32,
     /// Target size in bytes of a pixel message to the display.
     #[arg(long, default_value_t = 32 * 1024)]
-    message_bytes: usize,
+    pub message_bytes: usize,
     /// Seconds any rank may wait (for a message, for its GPU) before the job is aborted.
     #[arg(long, default_value_t = 300)]
-    timeout: u64,
-    /// Write the run's figures (frame times, per-rank statistics) as JSON to this file.
-    #[arg(long)]
-    stats: Option<PathBuf>,
+    pub timeout: u64,
+}
+
+impl ClusterArgs {
+    /// Checked in one process too, so that a typo is not found only on the cluster.
+    pub fn check(&self) -> Result<()> {
+        if self.copy_threads == 0 || self.tile == 0 || self.min_tile == 0 || self.message_bytes == 0
+        {
+            bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
+        }
+        if self.timeout == 0 {
+            bail!("--timeout must be at least 1 second");
+        }
+        Ok(())
+    }
 }
 
 #[derive(Args, Clone)]
 pub struct DcArgs {
     /// Split the model over N in-process ranks and render through a distributed cache.
     #[arg(long)]
-    virtual_ranks: Option<u32>,
+    pub virtual_ranks: Option<u32>,
     /// The rank this process renders as (with --virtual-ranks).
     #[arg(long, default_value_t = 0)]
     rank: u32,
@@ -160,6 +175,27 @@ impl DcArgs {
         }))
     }
 
+    /// The distributed cache of a job under mpirun: `--cache` turns it on.
+    pub fn cluster_cache(&self) -> Result<Option<dcrt::cluster::CacheOptions>> {
+        Ok(match &self.cache {
+            Some(s) => Some(dcrt::cluster::CacheOptions {
+                size: CacheSize::parse(s)?,
+                map: self.map(),
+                replicate: self.replicate_blocks,
+            }),
+            None if self.replicate_blocks != Replicate::Root => bail!(
+                "--replicate-blocks {} needs --cache under mpirun: without a cache every rank \
+                 holds the whole model",
+                self.replicate_name()
+            ),
+            None if self.cache_map.is_some() => bail!(
+                "--cache-map needs --cache under mpirun: without a cache every rank holds the \
+                 whole model"
+            ),
+            None => None,
+        })
+    }
+
     fn map(&self) -> CacheMap {
         self.cache_map.unwrap_or(CacheMap::Ize)
     }
@@ -207,7 +243,7 @@ pub fn render(a: RenderArgs, sw: &Switches) -> Result<()> {
     if let Some(exr) = &a.exr {
         outputs.push(("EXR", exr.as_path(), a.frames));
     }
-    if let Some(stats) = &a.cluster.stats {
+    if let Some(stats) = &a.stats {
         outputs.push(("statistics", stats.as_path(), 1));
     }
     let mut inputs = Scene::input_files(&a.scene)?;
@@ -218,14 +254,7 @@ pub fn render(a: RenderArgs, sw: &Switches) -> Result<()> {
             .with_context(|| format!("{}: cannot create the trace directory", dir.display()))?;
     }
     let format = Format::new(a.gpu.build.block_size)?;
-    // Checked in one process too, so that a typo is not found only on the cluster.
-    let c = &a.cluster;
-    if c.copy_threads == 0 || c.tile == 0 || c.min_tile == 0 || c.message_bytes == 0 {
-        bail!("--copy-threads, --tile, --min-tile and --message-bytes must be at least 1");
-    }
-    if c.timeout == 0 {
-        bail!("--timeout must be at least 1 second");
-    }
+    a.cluster.check()?;
     if let Some(k) = dcrt::cluster::launched_ranks().filter(|&k| k > 1) {
         return render_cluster(&a, sw, format, k);
     }
@@ -331,7 +360,7 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
             let numbered = |p: &Path| files::numbered(p, i, a.frames);
             // Kept only for --stats, and as the stats themselves: a JSON value per frame was
             // about 4 KiB, a leak in a long run (docs/ARCHITECTURE.md, Frame loop).
-            if a.cluster.stats.is_some() {
+            if a.stats.is_some() {
                 report.push(stats.clone());
             }
             let png = numbered(&a.output);
@@ -379,7 +408,7 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
         },
     )?;
     bar.finish_and_clear();
-    if let Some(path) = &a.cluster.stats {
+    if let Some(path) = &a.stats {
         let frames: Vec<_> = report
             .iter()
             .enumerate()
@@ -421,23 +450,7 @@ fn render_cluster(a: &RenderArgs, sw: &Switches, format: Format, k: u32) -> Resu
         bail!("--virtual-ranks is for one process; under mpirun the {k} ranks are the ranks");
     }
     let c = &a.cluster;
-    let cache = match &a.dc.cache {
-        Some(s) => Some(dcrt::cluster::CacheOptions {
-            size: CacheSize::parse(s)?,
-            map: a.dc.map(),
-            replicate: a.dc.replicate_blocks,
-        }),
-        None if a.dc.replicate_blocks != Replicate::Root => bail!(
-            "--replicate-blocks {} needs --cache under mpirun: without a cache every rank holds \
-             the whole model",
-            a.dc.replicate_name()
-        ),
-        None if a.dc.cache_map.is_some() => bail!(
-            "--cache-map needs --cache under mpirun: without a cache every rank holds the whole \
-             model"
-        ),
-        None => None,
-    };
+    let cache = a.dc.cluster_cache()?;
     let opts = dcrt::cluster::Options {
         input: a.scene.clone(),
         output: a.output.clone(),
@@ -460,7 +473,8 @@ fn render_cluster(a: &RenderArgs, sw: &Switches, format: Format, k: u32) -> Resu
         message_bytes: c.message_bytes,
         timeout: std::time::Duration::from_secs(c.timeout),
         display_bench: sw.display_bench,
-        stats: c.stats.clone(),
+        live: false,
+        stats: a.stats.clone(),
         legend: a.legend,
         camera: a
             .camera
