@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, DejaVu fonts (the text of `--legend` and charts), Chromium and its WebDriver
-# with a Python venv holding selenium (.view-venv: the browser test of `dcrt view`), and
-# cargo-nextest. On Debian 12, lavapipe comes from bookworm-backports (Mesa 25 rather than the
+# crate), Open MPI, DejaVu fonts (the text of `--legend` and charts), Chromium and Firefox ESR
+# with their WebDrivers (geckodriver built by cargo) and a Python venv holding selenium
+# (.view-venv: the browser tests of `dcrt view`), and cargo-nextest. On Debian 12, lavapipe comes from bookworm-backports (Mesa 25 rather than the
 # release's 22.3.6: the same images, faster kernels; DCRT_SYSTEM_MESA=1 keeps the release's).
 # Installs only what is missing; safe to run again.
 set -euo pipefail
@@ -10,7 +10,7 @@ sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"
 
 packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core
-  chromium chromium-driver python3-venv)
+  chromium chromium-driver firefox-esr python3-venv)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -38,7 +38,15 @@ if ! cargo nextest --version >/dev/null 2>&1; then
   cargo install cargo-nextest --locked
 fi
 
-# The browser test of `dcrt view` (tests/view_browser.py) drives Chromium with selenium.
+# Firefox's WebDriver: not packaged by Debian 12; Mozilla publishes it on crates.io.
+GECKODRIVER_VERSION=0.37.1
+if ! geckodriver --version 2>/dev/null | grep -q "^geckodriver $GECKODRIVER_VERSION"; then
+  echo "setup: installing geckodriver $GECKODRIVER_VERSION"
+  cargo install geckodriver --version "$GECKODRIVER_VERSION" --locked
+fi
+
+# The browser tests of `dcrt view` (tests/view_browser.py) drive Chromium and Firefox with
+# selenium.
 SELENIUM_VERSION=4.51.0
 root="$(cd "$(dirname "$0")/.." && pwd)"
 venv="$root/.view-venv"

@@ -1,7 +1,10 @@
-"""The live view's page in a headless Chromium (driven by selenium), run by tests/all/view.rs:
-load the page, see a frame, drag with the left button, see the camera change (GET /camera) and a
-frame of the new camera. Usage: view_browser.py URL CHROMEDRIVER CHROMIUM. Exit 0 when all of
-that happened; otherwise 1, saying what did not."""
+"""The live view's page in a headless Chromium or Firefox (driven by selenium), run by
+tests/all/view.rs: load the page, see a frame, drag with the left button, see the camera change
+(GET /camera) and a frame of the new camera. Usage: view_browser.py URL chromium|firefox DRIVER
+BROWSER [SCREENSHOT.png [WIDTHxHEIGHT]], DRIVER being chromedriver or geckodriver and BROWSER the
+browser's executable: with a path, once the frame of the new camera is refined to its samples, a
+screenshot of the window (scripts/view-screenshot.sh makes the README's). Exit 0 when all of that
+happened; otherwise 1, saying what did not."""
 
 import json
 import sys
@@ -10,7 +13,8 @@ import urllib.request
 from urllib.parse import urlsplit, urlunsplit
 
 from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.chrome.service import Service as ChromeService
+from selenium.webdriver.firefox.service import Service as FirefoxService
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 
@@ -36,12 +40,24 @@ def wait_for(what, test):
 
 
 def main():
-    url, driver_path, chromium = sys.argv[1:4]
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for a in ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=640,480"]:
-        options.add_argument(a)
-    driver = webdriver.Chrome(service=Service(executable_path=driver_path), options=options)
+    url, kind, driver_path, browser = sys.argv[1:5]
+    screenshot = sys.argv[5] if len(sys.argv) > 5 else None
+    width, height = (sys.argv[6] if len(sys.argv) > 6 else "640x480").split("x")
+    if kind == "chromium":
+        options = webdriver.ChromeOptions()
+        options.binary_location = browser
+        for a in ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", f"--window-size={width},{height}"]:
+            options.add_argument(a)
+        driver = webdriver.Chrome(service=ChromeService(executable_path=driver_path), options=options)
+    elif kind == "firefox":
+        options = webdriver.FirefoxOptions()
+        options.binary_location = browser
+        for a in ["-headless", f"--width={width}", f"--height={height}"]:
+            options.add_argument(a)
+        driver = webdriver.Firefox(service=FirefoxService(executable_path=driver_path), options=options)
+    else:
+        print(f"view_browser: unknown browser kind {kind!r} (chromium or firefox)", file=sys.stderr)
+        sys.exit(2)
     try:
         driver.set_page_load_timeout(LIMIT)
         driver.get(url)
@@ -58,7 +74,11 @@ def main():
             sys.exit(1)
         seq = api(url, "/stats")["seq"]
         wait_for(f"a frame of camera seq {seq}", lambda: frames() > shown and int(img.get_attribute("data-seq") or -1) >= seq)
-        print(f"view_browser: ok: {frames()} frames, camera {before['position']} -> {after['position']}, seq {seq}")
+        if screenshot:
+            wait_for("the refined frame", lambda: (s := api(url, "/stats"))["seq"] == seq and s["spp_reached"] == s["spp"])
+            time.sleep(1.0)
+            driver.save_screenshot(screenshot)
+        print(f"view_browser: ok: {kind}, {frames()} frames, camera {before['position']} -> {after['position']}, seq {seq}")
     finally:
         driver.quit()
 

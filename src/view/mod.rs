@@ -84,6 +84,13 @@ pub fn run(
         .local_addr()
         .map_err(|e| Error::Internal(format!("the view's address: {e}")))?;
     let app = server::router(shared.clone());
+    // Without TCP_NODELAY a frame's JPEG, sent right after its description, waits for the
+    // client's delayed ACK: 40 ms a frame.
+    let listener = axum::serve::ListenerExt::tap_io(listener, |tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            crate::report!("warning: the view cannot set TCP_NODELAY: {e}");
+        }
+    });
     rt.spawn(async move {
         if let Err(e) = axum::serve(listener, app).await {
             crate::report!("error: the view's server stopped: {e}");

@@ -428,13 +428,13 @@ fn wait_bounded(child: &mut Child, limit: Duration) -> Option<std::process::Exit
 
 /// The page in a headless Chromium (tests/view_browser.py, selenium in the venv
 /// scripts/setup.sh makes): it loads, shows a frame, a left drag turns the camera (GET /camera
-/// sees it) and a frame of the new camera arrives. Skipped, saying so, only where Chromium is
-/// not installed; with Chromium but without the venv it fails.
+/// sees it) and a frame of the new camera arrives. Skipped, saying so, only where the browser is
+/// not installed; with it but without the venv it fails.
 #[test]
 fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
     let d = TempDir::new("view-browser");
     let scene = scene(&d);
-    in_chromium(|| View::start(&scene, &[]));
+    in_browser(Browser::Chromium, || View::start(&scene, &[]));
 }
 
 /// The same page served by the display rank of `mpirun -n 4` with a distributed cache.
@@ -442,11 +442,28 @@ fn the_page_shows_frames_and_turns_the_camera_under_the_mouse() {
 fn the_page_under_mpirun_shows_frames_and_turns_the_camera() {
     let d = TempDir::new("view-browser-mpirun");
     let scene = scene(&d);
-    in_chromium(|| View::mpirun(4, &scene, &["--cache", "1/2"]));
+    in_browser(Browser::Chromium, || {
+        View::mpirun(4, &scene, &["--cache", "1/2"])
+    });
 }
 
-/// Runs tests/view_browser.py against the view `start` starts, where Chromium is installed.
-fn in_chromium(start: impl FnOnce() -> View) {
+/// The same page in a headless Firefox (Debian's firefox-esr, geckodriver from crates.io).
+#[test]
+fn the_page_in_firefox_shows_frames_and_turns_the_camera() {
+    let d = TempDir::new("view-browser-firefox");
+    let scene = scene(&d);
+    in_browser(Browser::Firefox, || View::start(&scene, &[]));
+}
+
+#[derive(Clone, Copy)]
+enum Browser {
+    Chromium,
+    Firefox,
+}
+
+/// Runs tests/view_browser.py in `browser` against the view `start` starts, where the browser
+/// is installed.
+fn in_browser(browser: Browser, start: impl FnOnce() -> View) {
     let which = |name: &str| {
         std::env::var_os("PATH").and_then(|paths| {
             std::env::split_paths(&paths)
@@ -454,10 +471,23 @@ fn in_chromium(start: impl FnOnce() -> View) {
                 .find(|p| p.is_file())
         })
     };
-    let (Some(chromium), Some(driver)) = (which("chromium"), which("chromedriver")) else {
+    let (kind, exe, driver, packages) = match browser {
+        Browser::Chromium => (
+            "chromium",
+            "chromium",
+            "chromedriver",
+            "Debian's chromium and chromium-driver",
+        ),
+        Browser::Firefox => (
+            "firefox",
+            "firefox-esr",
+            "geckodriver",
+            "Debian's firefox-esr and geckodriver with cargo install",
+        ),
+    };
+    let (Some(exe), Some(driver)) = (which(exe), which(driver)) else {
         eprintln!(
-            "SKIPPED: chromium and chromedriver are not installed (scripts/setup.sh installs \
-             Debian's chromium and chromium-driver)"
+            "SKIPPED: {kind} or its driver is not installed (scripts/setup.sh installs {packages})"
         );
         return;
     };
@@ -471,8 +501,9 @@ fn in_chromium(start: impl FnOnce() -> View) {
     let mut child = Command::new(&python)
         .arg(crate::common::repo().join("tests/view_browser.py"))
         .arg(&v.url)
+        .arg(kind)
         .arg(&driver)
-        .arg(&chromium)
+        .arg(&exe)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -489,7 +520,7 @@ fn in_chromium(start: impl FnOnce() -> View) {
     );
     assert!(status.is_some(), "the browser test did not end: {said}");
     assert!(out.status.success(), "{said}");
-    assert!(said.contains("view_browser: ok"), "{said}");
+    assert!(said.contains(&format!("view_browser: ok: {kind}")), "{said}");
 }
 
 type Socket = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;

@@ -2,7 +2,8 @@
 //! throughput per BVH preset, block store and shading mode (`rays`), the distributed-cache sweep
 //! (`dc`), shading time against error (`shading`), cluster jobs under mpirun (`cluster`, with
 //! the jobs' runner in `jobs`), the chapter's Figures 6-8 (`figures`), memory over a long orbit
-//! (`soak`), the mesh loaders' fuzzing (`fuzz`), and `job`, the render path with the
+//! (`soak`), the live view's latency and frame rate (`view`), the mesh loaders' fuzzing (`fuzz`),
+//! and `job`, the render path with the
 //! measurement switches (`switches`) that the cluster bench and the figures run under mpirun.
 
 mod cluster;
@@ -14,6 +15,7 @@ mod rays;
 pub mod shading;
 mod soak;
 mod switches;
+mod view;
 
 pub use switches::Switches;
 
@@ -52,6 +54,10 @@ pub enum Bench {
     /// Memory soak: an orbit of many frames in one process; resident memory at intervals and
     /// its slope in bytes per frame.
     Soak(soak::SoakArgs),
+    /// The live view as its user meets it: latency from a camera change to its frame, frames a
+    /// second while dragging, the encoder's share, per frame size and cache; or with --minutes
+    /// the view's memory over a long session of dragging.
+    View(view::ViewArgs),
     /// Fuzz every mesh loader with mutations of the shipped files (scenes/meshes/,
     /// tests/data/vtk/; run from the repository); any input that panics, breaks a loader's
     /// promise or takes over a second is saved in fuzz-crashes/.
@@ -141,6 +147,7 @@ pub fn bench(b: Bench) -> Result<()> {
         Bench::Cluster(a) => cluster::bench(&a),
         Bench::Figures(a) => figures::bench(&a),
         Bench::Soak(a) => soak::bench(&a),
+        Bench::View(a) => view::bench(&a),
         Bench::Fuzz(a) => fuzz::run(a.seconds, a.json),
         Bench::Job(a) => crate::render::render(a.render, &a.switches),
     }
