@@ -20,7 +20,8 @@ use state::{LiveFrame, Shared, Wish};
 use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 
-/// JPEG quality of the frames sent to the page.
+/// JPEG quality of the frames sent to the page (`jpeg-encoder`, its SIMD paths chosen at run
+/// time: 13 ms for 1920x1080 where `image`'s encoder took 50, docs/benchmarks.md).
 pub const JPEG_QUALITY: u8 = 85;
 
 /// Where the view listens and what it shows first.
@@ -111,8 +112,13 @@ fn encode_frames(shared: &Arc<Shared>) {
         let raw = shared.raw.take();
         let t = std::time::Instant::now();
         let mut jpeg = Vec::new();
-        let encoded = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, JPEG_QUALITY)
-            .encode_image(&raw.image);
+        let (w, h) = raw.image.dimensions();
+        let encoded = match (u16::try_from(w), u16::try_from(h)) {
+            (Ok(w), Ok(h)) => jpeg_encoder::Encoder::new(&mut jpeg, JPEG_QUALITY)
+                .encode(raw.image.as_raw(), w, h, jpeg_encoder::ColorType::Rgb)
+                .map_err(|e| e.to_string()),
+            _ => Err(format!("{w}x{h} is beyond JPEG's 65535 a side")),
+        };
         if let Err(e) = encoded {
             crate::report!("error: JPEG encoding of a frame failed: {e}");
             continue;

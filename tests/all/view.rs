@@ -520,7 +520,10 @@ fn in_browser(browser: Browser, start: impl FnOnce() -> View) {
     );
     assert!(status.is_some(), "the browser test did not end: {said}");
     assert!(out.status.success(), "{said}");
-    assert!(said.contains(&format!("view_browser: ok: {kind}")), "{said}");
+    assert!(
+        said.contains(&format!("view_browser: ok: {kind}")),
+        "{said}"
+    );
 }
 
 type Socket = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;
@@ -588,6 +591,20 @@ fn websocket_clients_steer_and_watch() {
     );
     let img = image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg).unwrap();
     assert_eq!((img.width(), img.height()), (64, 48));
+    // The JPEG is the still frame, within JPEG's loss.
+    let png = v.frame(0);
+    let diff: f64 = img
+        .to_rgb8()
+        .as_raw()
+        .iter()
+        .zip(png.as_raw())
+        .map(|(a, b)| f64::from(a.abs_diff(*b)))
+        .sum::<f64>()
+        / png.as_raw().len() as f64;
+    assert!(
+        diff < 6.0,
+        "the JPEG differs from the frame by {diff} a channel"
+    );
     steer
         .send(tungstenite::Message::text("{\"camera\": [1, 2"))
         .unwrap();
