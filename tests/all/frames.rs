@@ -273,7 +273,7 @@ fn render_writes_a_trace_and_statistics_per_frame() {
                 );
                 assert_eq!(f["lookups"], 0);
             } else {
-                assert_eq!(f["cache_map"], "ize");
+                assert_eq!(f["cache_map"], "lru", "the default mapping");
                 assert_eq!(f["lookups"], st["stats"]["lookups"]);
                 assert_eq!(f["fetched_blocks"], st["stats"]["fetched_blocks"]);
             }
