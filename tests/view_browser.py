@@ -28,14 +28,14 @@ def api(url, path):
         return json.loads(r.read())
 
 
-def wait_for(what, test):
+def wait_for(what, test, limit=LIMIT):
     start = time.monotonic()
-    while time.monotonic() - start < LIMIT:
+    while time.monotonic() - start < limit:
         v = test()
         if v:
             return v
         time.sleep(0.1)
-    print(f"view_browser: {what} did not happen within {LIMIT:.0f} s", file=sys.stderr)
+    print(f"view_browser: {what} did not happen within {limit:.0f} s", file=sys.stderr)
     sys.exit(1)
 
 
@@ -75,7 +75,7 @@ def main():
         seq = api(url, "/stats")["seq"]
         wait_for(f"a frame of camera seq {seq}", lambda: frames() > shown and int(img.get_attribute("data-seq") or -1) >= seq)
         if screenshot:
-            wait_for("the refined frame", lambda: (s := api(url, "/stats"))["seq"] == seq and s["spp_reached"] == s["spp"])
+            wait_for("the refined frame", lambda: (s := api(url, "/stats"))["seq"] >= seq and s["spp_reached"] == s["spp"], limit=300)
             time.sleep(1.0)
             driver.save_screenshot(screenshot)
         print(f"view_browser: ok: {kind}, {frames()} frames, camera {before['position']} -> {after['position']}, seq {seq}")
