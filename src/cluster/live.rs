@@ -1,8 +1,10 @@
 //! The display rank of a live view (`dcrt view` under mpirun; docs/ARCHITECTURE.md, Live view):
 //! the frames are not known in advance, so the display makes them one at a time as its clients
 //! ask: it sends every render rank the frame's `JOB`, answers `ASK`s when it also balances (2
-//! ranks), and assembles the pixels until every render rank's `DONE` is in. Between frames it
-//! says `ALIVE` to every rank, so that a user who only looks is not taken for a dead display.
+//! ranks), and assembles the pixels until every render rank's `DONE` is in. It says `ALIVE` to
+//! every rank each quarter of the timeout, between frames and during them, so that neither a
+//! user who only looks nor a long frame is taken for a dead display by a rank waiting for its
+//! next `JOB`.
 //! The view itself (server, encoder, what to render next) is above this module and drives it.
 
 use super::balancer::Balancer;
@@ -147,6 +149,8 @@ impl<'a> LiveDisplay<'a> {
         let mut reports: Vec<FrameReport> = Vec::new();
         let mut last_check = Instant::now();
         while reports.len() < n as usize {
+            // A rank done with its part waits for the next `JOB`: a long frame is not silence.
+            self.say_alive();
             let next = next_within(self.world, SLICE);
             let now = Instant::now();
             if now - last_check >= SLICE {
@@ -205,7 +209,6 @@ impl<'a> LiveDisplay<'a> {
             ),
         };
         reports.sort_by_key(|r| r.rank);
-        self.heart = Heartbeat::new(self.opts.timeout);
         Ok(Assembled {
             pixels,
             reports,
@@ -216,11 +219,7 @@ impl<'a> LiveDisplay<'a> {
     /// Between frames, for at most `slice`: says `ALIVE` to every other rank when it is time,
     /// and takes in what comes (only late `ALIVE`s may).
     pub fn wait(&mut self, slice: Duration) -> Result<()> {
-        if self.heart.due() {
-            for r in 1..self.roles.size {
-                send(self.world, r, Tag::Alive, &[]);
-            }
-        }
+        self.say_alive();
         if let Some((bytes, from, tag)) = next_within(self.world, slice) {
             self.live.heard(from, Instant::now());
             match Message::decode(tag, from, bytes)? {
@@ -234,5 +233,14 @@ impl<'a> LiveDisplay<'a> {
             }
         }
         Ok(())
+    }
+
+    /// `ALIVE` to every other rank when it is time.
+    fn say_alive(&mut self) {
+        if self.heart.due() {
+            for r in 1..self.roles.size {
+                send(self.world, r, Tag::Alive, &[]);
+            }
+        }
     }
 }

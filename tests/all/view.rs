@@ -712,3 +712,34 @@ fn under_mpirun_the_display_rank_serves_frames_equal_to_render() {
     let status = wait_bounded(&mut v.child, ANSWER);
     assert!(status.is_some(), "mpirun did not end on SIGTERM");
 }
+
+/// Under mpirun a render rank that dies or stops while the view makes its first frame ends the
+/// whole job, as in a render: killed, mpirun ends it; stopped (SIGSTOP), the display names it
+/// after `--timeout` s of silence.
+#[test]
+fn under_mpirun_a_dying_or_stopped_render_rank_ends_the_view() {
+    let d = TempDir::new("view-mpirun-fail");
+    let scene = scene(&d);
+    for (how, named) in [("kill@3", "rank 3"), ("stop@3", "rank 3 (render)")] {
+        let start = std::time::Instant::now();
+        let out = Command::new("timeout")
+            .args(["-k", "5", "120", "mpirun", "--oversubscribe", "-n", "4"])
+            .arg(env!("CARGO_BIN_EXE_dcrt"))
+            .arg("view")
+            .arg(&scene)
+            .args(["--port", "0", "--cache", "1/2", "--timeout", "5"])
+            .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+            .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+            .env("DCRT_TEST_FAIL", how)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        let code = out.status.code();
+        // `timeout` would stop it at 120 s; mpirun's own exit for a killed rank is 137 too.
+        assert!(
+            code != Some(0) && start.elapsed().as_secs() < 115,
+            "{how}: the job did not end by itself (exit {code:?}):\n{err}"
+        );
+        assert!(err.contains(named), "{how}: no {named:?} in:\n{err}");
+    }
+}
