@@ -256,13 +256,15 @@ pub fn produce(frames: &mut dyn Frames, shared: &Arc<Shared>, still: &Still) -> 
             };
             let last = s + 1 == spp;
             totals.add(&f, last);
-            if last {
+            let still_image = last.then(|| image.clone());
+            // The statistics first: a client that got the finished frame reads them after it.
+            publish(shared, image, &f, &wish, (s + 1, spp), true, &totals);
+            if let Some(image) = still_image {
                 shared.still.send_replace(Some(Arc::new(StillFrame {
                     seq: wish.seq,
-                    image: image.clone(),
+                    image,
                 })));
             }
-            publish(shared, image, &f, &wish, (s + 1, spp), true, &totals);
             if shared.superseded(wish.seq) {
                 finished = last;
                 break;
