@@ -6,7 +6,7 @@
 
 use crate::error::{Error, Result};
 use plotters::coord::Shift;
-use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
+use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged, ValueFormatter};
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -760,28 +760,9 @@ pub fn log_y<'a, 'b>(
     area: &'a Area<'b>,
     x: std::ops::Range<f64>,
     (lo, hi): (f64, f64),
-    (x_desc, y_desc): (&str, &str),
+    descs: (&str, &str),
 ) -> Result<LogY<'a, 'b, RangedCoordf64>> {
-    let mut chart = ChartBuilder::on(area)
-        .margin(10)
-        .margin_left(14)
-        .x_label_area_size(50)
-        .y_label_area_size(76)
-        .build_cartesian_2d(x, LogTicked::new(lo, hi))
-        .map_err(fail)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .axis_desc_style(text(LABEL))
-        .label_style(text(TICK))
-        .bold_line_style(RGBColor(225, 225, 225))
-        .light_line_style(RGBColor(245, 245, 245))
-        .x_label_formatter(&|v| number(*v))
-        .y_label_formatter(&|v| number(*v))
-        .draw()
-        .map_err(fail)?;
-    Ok(chart)
+    log_chart(area, x.into(), LogTicked::new(lo, hi), descs)
 }
 
 /// A chart on `area` with both axes log: x over `x`, y over `y`, ticks labelled with `number`.
@@ -789,14 +770,27 @@ pub fn log_log<'a, 'b>(
     area: &'a Area<'b>,
     (x0, x1): (f64, f64),
     (y0, y1): (f64, f64),
-    (x_desc, y_desc): (&str, &str),
+    descs: (&str, &str),
 ) -> Result<LogY<'a, 'b, LogTicked>> {
+    log_chart(area, LogTicked::new(x0, x1), LogTicked::new(y0, y1), descs)
+}
+
+/// The charts' look for an x axis of any kind over a log y axis.
+fn log_chart<'a, 'b, X>(
+    area: &'a Area<'b>,
+    x: X,
+    y: LogTicked,
+    (x_desc, y_desc): (&str, &str),
+) -> Result<LogY<'a, 'b, X>>
+where
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     let mut chart = ChartBuilder::on(area)
         .margin(10)
         .margin_left(14)
         .x_label_area_size(50)
         .y_label_area_size(76)
-        .build_cartesian_2d(LogTicked::new(x0, x1), LogTicked::new(y0, y1))
+        .build_cartesian_2d(x, y)
         .map_err(fail)?;
     chart
         .configure_mesh()
