@@ -30,12 +30,17 @@ pub struct Balancer {
 
 impl Balancer {
     pub fn new(roles: Roles, opts: &Options) -> Balancer {
+        let frames = if opts.live { u32::MAX } else { opts.frames };
+        Balancer::with(roles, frames, opts.tile, opts.min_tile)
+    }
+
+    fn with(roles: Roles, frames: u32, tile: u32, min_tile: u32) -> Balancer {
         let n = roles.render_ranks() as usize;
         Balancer {
             roles,
-            frames: if opts.live { u32::MAX } else { opts.frames },
-            tile: opts.tile,
-            min_tile: opts.min_tile,
+            frames,
+            tile,
+            min_tile,
             schedules: BTreeMap::new(),
             asked: vec![None; n],
             ended: vec![0; n],
@@ -127,5 +132,63 @@ impl Balancer {
             .into_iter()
             .filter_map(|f| self.events.remove(&f).map(|e| (f, e)))
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each frame's tiles cover that frame's size, as its first `ASK` gave it; a rank asking
+    /// about the same frame at another size is refused, naming both.
+    #[test]
+    fn each_frame_is_scheduled_at_the_size_it_is_asked_at() {
+        let roles = Roles::new(4).unwrap();
+        let mut b = Balancer::with(roles, u32::MAX, 16, 8);
+        for (frame, (w, h)) in [(0, (64, 48)), (1, (20, 12))] {
+            let mut covered = 0u64;
+            for rank in [2, 3] {
+                loop {
+                    let ask = Ask {
+                        frame,
+                        width: w,
+                        height: h,
+                    };
+                    let work = b.ask(rank, ask).unwrap();
+                    if work.tiles.is_empty() {
+                        break;
+                    }
+                    for t in &work.tiles {
+                        assert!(t.x + t.w <= w && t.y + t.h <= h, "{t:?} in {w}x{h}");
+                        covered += u64::from(t.w) * u64::from(t.h);
+                    }
+                }
+            }
+            assert_eq!(covered, u64::from(w) * u64::from(h), "frame {frame}");
+        }
+        b.ask(
+            2,
+            Ask {
+                frame: 2,
+                width: 64,
+                height: 48,
+            },
+        )
+        .unwrap();
+        let e = b
+            .ask(
+                3,
+                Ask {
+                    frame: 2,
+                    width: 32,
+                    height: 48,
+                },
+            )
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frame 2 at 32x48, which another rank asked about at 64x48"),
+            "{e}"
+        );
     }
 }

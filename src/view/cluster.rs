@@ -91,3 +91,59 @@ fn figures(reports: &[FrameReport], seconds: f64) -> Figures {
             .collect(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::frame::FrameStats;
+
+    /// The figures read from a render rank's report by name are the `FrameStats` it sent: a
+    /// field renamed on one side would otherwise show as 0 in the overlay.
+    #[test]
+    fn figures_come_from_the_reports_as_sent() {
+        let report = |rank: u32, seconds: f64, rounds: u32| {
+            let stats = FrameStats {
+                seconds,
+                trace_seconds: seconds / 2.0,
+                shade_seconds: seconds / 4.0,
+                fetch_seconds: seconds / 8.0,
+                upload_seconds: seconds / 16.0,
+                fault_rounds: rounds,
+                fetched_bytes: 1000 * u64::from(rank),
+                lookups: 100,
+                hits: 90,
+                ..FrameStats::default()
+            };
+            let sent = FrameReport {
+                frame: 3,
+                rank,
+                tiles: u64::from(rank),
+                pixels: 64 * u64::from(rank),
+                messages: 1,
+                bytes: 10,
+                stats: &stats,
+            };
+            FrameReport::decode(rank, &sent.encode().unwrap()).unwrap()
+        };
+        let f = figures(&[report(2, 0.5, 7), report(3, 1.0, 4)], 1.25);
+        assert_eq!(f.seconds, 1.25);
+        // The slowest rank's phases.
+        assert_eq!(
+            (
+                f.trace_seconds,
+                f.shade_seconds,
+                f.fetch_seconds,
+                f.upload_seconds
+            ),
+            (0.5, 0.25, 0.125, 0.0625)
+        );
+        assert_eq!(f.fault_rounds, 7, "the most of any rank");
+        assert_eq!((f.fetched_bytes, f.lookups, f.hits), (5000, 200, 180));
+        let shares: Vec<(u32, u64, u64)> = f
+            .shares
+            .iter()
+            .map(|s| (s.rank, s.tiles, s.pixels))
+            .collect();
+        assert_eq!(shares, [(2, 2, 128), (3, 3, 192)]);
+    }
+}

@@ -743,3 +743,55 @@ fn under_mpirun_a_dying_or_stopped_render_rank_ends_the_view() {
         assert!(err.contains(named), "{how}: no {named:?} in:\n{err}");
     }
 }
+
+/// `dcrt bench view` drives a view and reports what it measured: every camera change got its
+/// frame (the latency includes that frame's time), frames came while dragging, the encoder ran;
+/// a bad size and a missing scene are refused, naming them.
+#[test]
+fn bench_view_measures_a_view_and_refuses_bad_input() {
+    let d = TempDir::new("view-bench");
+    let scene = scene(&d);
+    let out = Command::new(env!("CARGO_BIN_EXE_dcrt"))
+        .args(["bench", "view"])
+        .arg(&scene)
+        .args([
+            "--sizes",
+            "32x24",
+            "--caches",
+            "none,4lines",
+            "--virtual-ranks",
+            "3",
+        ])
+        .args(["--steps", "3", "--drag-seconds", "1", "--json", "--quiet"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let runs: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let runs = runs.as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{runs:?}");
+    for r in runs {
+        let f = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+        assert!(f("frame_median_ms") > 0.0, "{r}");
+        assert!(f("latency_median_ms") >= f("frame_median_ms"), "{r}");
+        assert!(f("drag_fps") > 0.0 && f("drag_pixels") > 0.0, "{r}");
+        assert!(f("encode_median_ms") > 0.0 && f("jpeg_kib") > 0.0, "{r}");
+    }
+    assert_eq!(runs[0]["fault_rounds"], 0.0, "replicated");
+    assert!(
+        runs[1]["fault_rounds"].as_f64().unwrap() > 0.0,
+        "{}",
+        runs[1]
+    );
+    let bad = dcrt(&[&"bench", &"view", &"--sizes", &"32y24"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("\"32y24\" is not WIDTHxHEIGHT"));
+    let missing = d.path("missing.toml");
+    let bad = dcrt(&[&"bench", &"view", &missing, &"--sizes", &"32x24"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success());
+    assert!(
+        err.contains("missing.toml ended before it listened") && err.contains("No such file"),
+        "{err}"
+    );
+}

@@ -245,12 +245,18 @@ fn start(a: &ViewArgs, scene: &Path, (w, h): (u32, u32), cache: &str) -> Result<
         .context("starting dcrt view")?;
     let err = child.stderr.take().context("the view's stderr")?;
     let mut lines = BufReader::new(err).lines();
+    let mut said = Vec::new();
     let port = loop {
         let Some(line) = lines.next() else {
             let _ = child.wait();
-            bail!("dcrt view ended before it listened");
+            bail!(
+                "dcrt view {} ended before it listened, saying:\n{}",
+                scene.display(),
+                said.join("\n")
+            );
         };
         let line = line?;
+        said.push(line.clone());
         if let Some(rest) = line.strip_prefix("view: listening on ") {
             break rest
                 .rsplit(':')
