@@ -1,12 +1,13 @@
 // The primary hits of one pass over a batch (one invocation per pixel slot). In `cast` mode:
-// headlight Lambert times the mesh colour. In the other modes: the sample's path starts here
-// (spawn and gather follow). The first pass of a render also writes the AOVs of the EXR contract
-// (depth along the normalized ray, primitive id, unit geometric normal). Colours are summed over
-// passes; the host divides by the sample count.
+// headlight Lambert times the mesh colour (shared/pixel.wgsl); the pixels of rays the first
+// traversal round shaded (`SHADED`) are left as it wrote them. In the other modes: the sample's
+// path starts here (spawn and gather follow). The first pass of a render also writes the AOVs of
+// the EXR contract. Colours are summed over passes; the host divides by the sample count.
 #import params
 #import ray
 #import scene
 #import shading
+#import pixel
 #import tiles
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
@@ -16,23 +17,25 @@
 // Colour by data: the albedo kernel's colour of each hit on a mesh coloured by data.
 @group(1) @binding(4) var<storage, read> albedos: array<vec4<f32>>;
 
-const AMBIENT: f32 = 0.15;
-const POS_INF: u32 = 0x7f800000u;
-
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= params.batch_rays {
         return;
     }
+    // Only the status is read first: most rays of a cast frame end in the first round.
+    if first_round_shades() && rays[i].g[2].y == SHADED {
+        return;
+    }
     let r = ray_state(rays[i]);
-    let hit = r.hit != NONE && r.status == DONE;
+    if first_round_shades() {
+        pixels[i] = cast_pixel(r, pixels[i]);
+        return;
+    }
+    let hit = ray_hit(r);
     var p = pixels[i];
     if (params.flags & FIRST_SAMPLE) != 0u {
-        p = Pixel(0.0, 0.0, 0.0, POS_INF, NONE, 0.0, 0.0, 0.0);
-        if hit {
-            p = Pixel(0.0, 0.0, 0.0, bitcast<u32>(r.t), r.prim, r.nx, r.ny, r.nz);
-        }
+        p = first_pixel(r);
     }
     var c = params.background.xyz;
     if MODE == MODE_PATH {
@@ -47,7 +50,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             albedo = albedos[i].xyz;
         }
         if MODE == MODE_CAST {
-            c = albedo * (AMBIENT + (1.0 - AMBIENT) * abs(dot(n, d)));
+            c = headlight(albedo, n, d);
         } else {
             var path: Path;
             path.pos = ray_hit_point(r);

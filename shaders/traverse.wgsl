@@ -6,6 +6,10 @@
 // until one of those blocks is in the cache. Rays not done are appended to the next live list.
 // The closest hit is the nearest, and of equally near ones the lowest triangle index, so the
 // order in which faults let a ray visit its subtrees never changes the image.
+//
+// A batch of primary rays starts with a round built with FIRST_ROUND: it makes each slot's camera
+// ray in registers (camera_ray) instead of loading what a ray generation kernel would have stored,
+// and in cast mode without colour by data it writes the pixel of every ray that ends in it.
 #import params
 #import ray
 #import blocks
@@ -13,6 +17,8 @@
 #import intersect
 #import queue
 #import offset
+#import camera
+#import pixel
 
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
@@ -29,7 +35,9 @@ struct Stats {
     tri_tests: atomic<u32>,
     overflows: atomic<u32>,
     suspended: atomic<u32>,
-    unused0: u32,
+    // Rays that entered traversal in the first round (FIRST_ROUND); the host copies a wave's
+    // spawned count here.
+    started: atomic<u32>,
     hits: atomic<u32>,
     misses: atomic<u32>,
     // Node visits, and how often a visit's node block differs from the previous visit's: the
@@ -45,6 +53,34 @@ struct Stats {
     subgroup_size: atomic<u32>,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
+// FIRST_ROUND with first_round_shades(): the pixels of the rays that end in the round.
+@group(1) @binding(7) var<storage, read_write> pixels: array<Pixel>;
+
+// The kernel of a batch's first round of primary rays: one invocation per batch slot (not per
+// live ray), each tracing the camera ray of its slot (see the top of this file).
+override FIRST_ROUND: bool = false;
+
+// How many strands of the batch's tiles the first round's workgroups interleave (spread_slot).
+const SPREAD: u32 = 16u;
+
+// The batch slot first-round invocation i traces: workgroup w (a tile's 64 rays) takes tile
+// (w % SPREAD) of SPREAD equal strands of the batch's tiles, its (w / SPREAD)th. lavapipe hands
+// each of its threads one contiguous range of a dispatch's workgroups: in tile order, one thread
+// would get the top of the image and another the bottom, however unequal their work (the rays
+// of later rounds come from live lists the threads fill together, interleaved).
+fn spread_slot(i: u32) -> u32 {
+    let groups = params.batch_rays / WORKGROUP;
+    let w = i / WORKGROUP;
+    let q = groups / SPREAD;
+    let rest = groups % SPREAD;
+    var k = w % SPREAD;
+    var j = w / SPREAD;
+    if w >= SPREAD * q {
+        k = w - SPREAD * q;
+        j = q;
+    }
+    return (k * q + min(k, rest) + j) * WORKGROUP + i % WORKGROUP;
+}
 
 // Stack entries set aside for absent blocks, in the last DEFER_SLOTS entries of a ray's stack
 // region (the host sizes stacks for them); 0 when replicated. Their count is in RayState.flags.
@@ -184,7 +220,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     // The block this invocation's ray waits for, requested at the kernel's end: one request site
     // (its atomics are a loop over the lanes on a CPU driver, taken or not).
     var ask = NONE;
-    if gid.x < counter_in[0] {
+    // The ray this invocation traces, if `go`.
+    var r = new_ray(vec3(0.0), vec3(0.0), 0.0, OUTSIDE, 0u, NONE);
+    var go = false;
+    // FIRST_ROUND: a batch slot, and whether its ray entered traversal.
+    let slot = FIRST_ROUND && gid.x < params.batch_rays;
+    var entered = 0u;
+    if FIRST_ROUND {
+        if slot {
+            ray_index = spread_slot(gid.x);
+            r = camera_ray(ray_index);
+            go = r.status == LIVE;
+            entered = u32(go);
+        }
+    } else if gid.x < counter_in[0] {
         ray_index = live_in[gid.x];
         // A ray whose block has not arrived only renews its request: no state is read or
         // written, which makes a round with many waiting rays cheap.
@@ -196,13 +245,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 again = true;
             }
         }
-    }
-    if gid.x < counter_in[0] && !parked {
-        // The four groups traversal reads: those of the closest hit are written whole when one
-        // is found (a CPU driver loads a buffer's words lane by lane, stalling on each).
-        let z = vec4(0u);
-        var r = ray_state(RayGroups(array(rays[ray_index].g[0], rays[ray_index].g[1],
+        if !parked {
+            // The four groups traversal reads: those of the closest hit are written whole when
+            // one is found (a CPU driver loads a buffer's words lane by lane, stalling on each).
+            let z = vec4(0u);
+            r = ray_state(RayGroups(array(rays[ray_index].g[0], rays[ray_index].g[1],
                                           rays[ray_index].g[2], rays[ray_index].g[3], z, z, z)));
+            go = true;
+        }
+    }
+    if go {
         r.wait_block = NONE;
         // A ray with NaN, infinite or zero inputs ends at once as a miss, whoever made it.
         let valid = ray_valid(r);
@@ -498,15 +550,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         r.steps += iters;
         r.cur_index = cur.x;
         r.cur_count = cur.y;
-        let w = ray_groups(r);
-        rays[ray_index].g[0].w = w.g[0].w;
-        rays[ray_index].g[1].w = w.g[1].w;
-        rays[ray_index].g[2] = w.g[2];
-        rays[ray_index].g[3] = w.g[3];
-        if closest.found {
-            rays[ray_index].g[4] = w.g[4];
-            rays[ray_index].g[5] = w.g[5];
-            rays[ray_index].g[6] = w.g[6];
+        if !FIRST_ROUND {
+            let w = ray_groups(r);
+            rays[ray_index].g[0].w = w.g[0].w;
+            rays[ray_index].g[1].w = w.g[1].w;
+            rays[ray_index].g[2] = w.g[2];
+            rays[ray_index].g[3] = w.g[3];
+            if closest.found {
+                rays[ray_index].g[4] = w.g[4];
+                rays[ray_index].g[5] = w.g[5];
+                rays[ray_index].g[6] = w.g[6];
+            }
         }
         again = r.status == LIVE;
         counts = vec4(iters, tests, visits, entries);
@@ -514,6 +568,21 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // each): one sum instead of two.
         let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 16u);
         more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
+    }
+    // The first round's slot, traced or not: its pixel when the ray has ended and the round
+    // shades, else its whole state (no earlier kernel stored any).
+    if slot {
+        if first_round_shades() && r.status != LIVE {
+            var before = Pixel();
+            if (params.flags & FIRST_SAMPLE) == 0u {
+                before = pixels[ray_index];
+            }
+            pixels[ray_index] = cast_pixel(r, before);
+            r.status = SHADED;
+            rays[ray_index].g[2] = ray_groups(r).g[2];
+        } else {
+            rays[ray_index] = ray_groups(r);
+        }
     }
     if DC && ask != NONE {
         request(ask, requester(ray_index));
@@ -525,7 +594,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if BLOCK_COUNTS {
         sub_steps = subgroupMax(counts.x);
     }
+    var sub_started = 0u;
+    if FIRST_ROUND {
+        sub_started = subgroupAdd(entered);
+    }
     if sgi == 0u {
+        if FIRST_ROUND {
+            atomicAdd(&stats.started, sub_started);
+        }
         atomicAdd(&stats.steps, sub_counts.x);
         atomicAdd(&stats.tri_tests, sub_counts.y);
         atomicAdd(&stats.overflows, sub_more.y >> 16u);

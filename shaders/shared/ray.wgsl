@@ -10,6 +10,9 @@ const LIVE: u32 = 0u;
 const DONE: u32 = 1u;
 const OUTSIDE: u32 = 2u;   // pixel outside the image (partial edge tile) or an invalid ray
 const OVERFLOW: u32 = 3u;  // traversal stack overflow: reported to the host as an error
+// A primary ray the first traversal round ended and wrote the pixel of (shared/pixel.wgsl,
+// first_round_shades): only this status is stored, and the shade kernel skips the slot.
+const SHADED: u32 = 4u;
 
 // Mirrors gpu::layout::RayState: one per ray of a batch, kept between trace dispatches.
 struct RayState {

@@ -219,7 +219,9 @@ impl Kernel {
 /// The pipelines of a shading mode: each carries only its mode's code (`MODE` is a pipeline
 /// constant), and modes without secondary rays get no spawn or gather pipeline.
 pub struct Kernels {
-    pub raygen: Kernel,
+    /// `traverse` built for a batch's first round of primary rays (`FIRST_ROUND`): it makes the
+    /// camera rays, and in cast mode writes the pixels of those that end in it.
+    pub traverse_first: Kernel,
     pub traverse: Kernel,
     /// With a cache, `traverse` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
     /// nothing aside (`Params::dc_defer` 0): a CPU driver runs the set-aside code of a loop pass
@@ -247,8 +249,10 @@ impl Kernels {
             c.count(Override::DeferSlots, 0);
             Kernel::new(gpu, "traverse", store, &c)
         });
+        let mut first = c.clone();
+        first.flag(Override::FirstRound, true);
         Kernels {
-            raygen: k("raygen"),
+            traverse_first: Kernel::new(gpu, "traverse", store, &first),
             traverse: k("traverse"),
             traverse_suspending: suspending,
             args: k("args"),

@@ -13,7 +13,8 @@ use std::mem::size_of;
 
 /// The kernels' bind groups over this tracer's buffers.
 pub(super) struct BoundKernels {
-    pub raygen: Bound,
+    /// Reads no list; appends to list 0, as `spawn` does.
+    pub traverse_first: Bound,
     /// Indexed by the live list the round reads.
     pub traverse: [Bound; 2],
     pub traverse_suspending: Option<[Bound; 2]>,
@@ -160,7 +161,7 @@ impl Tracer<'_> {
             [0, 1].map(|input| kernel.bind(gpu, with(Lists { input })))
         };
         BoundKernels {
-            raygen: k.raygen.bind(gpu, with(fill)),
+            traverse_first: k.traverse_first.bind(gpu, with(fill)),
             traverse: each(&k.traverse),
             traverse_suspending: k.traverse_suspending.as_ref().map(each),
             args: each(&k.args),
@@ -192,7 +193,7 @@ impl BoundKernels {
     /// Stands in until the tracer that owns the buffers exists.
     pub(super) fn placeholder() -> BoundKernels {
         BoundKernels {
-            raygen: Bound::empty(),
+            traverse_first: Bound::empty(),
             traverse: [Bound::empty(), Bound::empty()],
             traverse_suspending: None,
             args: [Bound::empty(), Bound::empty()],

@@ -127,6 +127,9 @@ pub mod status {
     pub const DONE: u32 = wgsl::DONE;
     pub const OUTSIDE: u32 = wgsl::OUTSIDE;
     pub const OVERFLOW: u32 = wgsl::OVERFLOW;
+    /// Ended in a batch's first round, which wrote its pixel (cast mode without colour by data):
+    /// of its state only `sp`, `status`, `steps` and `cur_index` are stored.
+    pub const SHADED: u32 = wgsl::SHADED;
 }
 
 /// `MeshInfo` in `shaders/shared/scene.wgsl`: a mesh-table entry's first primitive, colour and
@@ -188,8 +191,9 @@ pub struct Stats {
     pub overflows: u32,
     /// Rays that stopped on a fault this round.
     pub suspended: u32,
-    /// Where the cache's lookups were counted; the host adds hits and misses instead.
-    pub unused0: u32,
+    /// Rays that entered traversal: counted by a batch's first round of primary rays, copied
+    /// from a wave's spawned count.
+    pub started: u32,
     /// Cache consultations (blocks neither owned nor the root): how they went.
     pub hits: u32,
     pub misses: u32,
@@ -301,15 +305,16 @@ pub struct Path {
 const _: () = assert!(std::mem::size_of::<Path>() == 80);
 
 /// What the host reads back after each batch of traversal rounds, copied together into one
-/// buffer: the live counter, the trace statistics, the rounds' two GPU timestamps and the live
-/// count the batch's first round started with.
+/// buffer: the live counter, the trace statistics, the rounds' two GPU timestamps and, after a
+/// batch's first round of primary rays, the rays it left live.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct RoundReadback {
     pub counter: Counter,
     pub stats: Stats,
     pub timestamps: [u64; 2],
-    pub started: u32,
+    /// Rays left live by the batch's first round of primary rays (copied by that round only).
+    pub opened: u32,
     pub pad: [u32; 3],
 }
 

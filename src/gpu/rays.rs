@@ -23,7 +23,8 @@ impl Tracer<'_> {
         self.trace_rays_flagged(rays, 0)
     }
 
-    /// [`Tracer::trace_rays`] for rays from a camera, on no surface, as `raygen` makes them.
+    /// [`Tracer::trace_rays`] for rays from a camera, on no surface, as a batch's first round
+    /// makes them (`camera_ray` in shaders/shared/camera.wgsl).
     pub fn trace_camera_rays(&mut self, rays: &[Ray]) -> Result<Vec<Option<RayHit>>> {
         self.trace_rays_flagged(rays, flags::FROM_CAMERA)
     }
@@ -70,7 +71,7 @@ impl Tracer<'_> {
             self.kernels
                 .args
                 .dispatch(&mut enc, args, Dispatch::Over(1), None);
-            self.run_rounds(enc, &mut stats)?;
+            self.run_rounds(enc, 0, false, &mut stats)?;
             stats.batches += 1;
             out.extend(self.read_rays(n)?.into_iter().map(|r| {
                 (r.status == status::DONE && r.hit != NONE).then_some(RayHit {

@@ -1,6 +1,7 @@
 //! The round loop (docs/ARCHITECTURE.md, The round loop): a batch's rays are traced in rounds of
 //! `traverse` (each live ray runs at most `step_budget` loop iterations, then saves its state) and
-//! `args` (the count of rays still live becomes the next round's indirect dispatch). With a
+//! `args` (the count of rays still live becomes the next round's indirect dispatch). A batch of
+//! primary rays starts with `traverse_first`, which makes the camera rays itself. With a
 //! distributed cache, every round's faults are read back and served (`dc::policy` decides,
 //! the block source fetches, the store and the row table are updated) before the next round;
 //! without one, several rounds go in one submission.
@@ -13,8 +14,18 @@ use super::tracer::{MAX_STACK, Tracer};
 use crate::error::{Error, Result};
 use std::time::Instant;
 
-/// What starts a batch's traversal rounds: primary rays, or a wave of secondary rays.
-#[derive(Clone, Copy)]
+/// What a batch's traversal rounds report once no ray is live.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Traced {
+    /// Rays that entered traversal (`Stats::started`).
+    pub started: u32,
+    /// Of primary rays, those the first round left live (`RoundReadback::opened`).
+    pub opened: Option<u32>,
+}
+
+/// What starts a batch's traversal rounds: primary rays (made by its first round), or a wave of
+/// secondary rays (made by `spawn`).
+#[derive(Clone, Copy, PartialEq)]
 pub(super) enum Gen {
     Primary,
     Secondary { fan: u32 },
@@ -24,17 +35,23 @@ impl Tracer<'_> {
     /// Generates the batch's rays (primary, or a wave of secondary rays) and runs traversal rounds
     /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
     /// Returns how many rays entered traversal.
-    pub(super) fn traverse_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<u32> {
+    pub(super) fn traverse_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<Traced> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
-        self.record_start(&mut enc, 0, gen_);
-        self.run_rounds(enc, stats)
+        let cur = self.record_start(&mut enc, 0, gen_);
+        self.run_rounds(enc, cur, gen_ == Gen::Primary, stats)
     }
 
-    /// Starts a batch in lane `l`: writes `Params` into its buffer, clears its counters and
-    /// stats, and records ray generation (or a wave's spawn) into list 0, `args` on counter 0 and
-    /// the copy of the started count into the lane's read-back.
-    pub(super) fn record_start(&self, enc: &mut wgpu::CommandEncoder, l: usize, gen_: Gen) {
+    /// Starts a batch in lane `l`: writes `Params` into its buffer and clears its counters and
+    /// stats; for a wave, records its spawn into list 0, `args` on counter 0 and the copy of the
+    /// spawned count into `Stats::started`. Returns the list the first round reads (for primary
+    /// rays, whose first round reads none, the one it leaves list 0 after: 1).
+    pub(super) fn record_start(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        l: usize,
+        gen_: Gen,
+    ) -> usize {
         let (b, params_buf, bound) = self.lane(l);
         let params = Params {
             lane: l as u32,
@@ -46,42 +63,47 @@ impl Tracer<'_> {
         }
         enc.clear_buffer(&b.stats, 0, None);
         let k = &self.kernels;
-        match (gen_, &k.spawn, &bound.spawn) {
-            (Gen::Secondary { fan }, Some(spawn), Some(sb)) => {
-                let groups = Dispatch::Over(self.params.batch_rays * fan);
-                spawn.dispatch(enc, sb, groups, None);
-            }
-            _ => {
-                let groups = Dispatch::Over(self.params.batch_rays);
-                k.raygen.dispatch(enc, &bound.raygen, groups, None);
-            }
-        }
+        let (Gen::Secondary { fan }, Some(spawn), Some(sb)) = (gen_, &k.spawn, &bound.spawn) else {
+            return 1;
+        };
+        spawn.dispatch(enc, sb, Dispatch::Over(self.params.batch_rays * fan), None);
         k.args
             .dispatch(enc, &bound.args[0], Dispatch::Over(1), None);
-        let (at, _) = member!(started, u32);
-        enc.copy_buffer_to_buffer(&b.counters[0], 0, &b.readback, at, 4);
+        let at = std::mem::offset_of!(Stats, started) as u64;
+        enc.copy_buffer_to_buffer(&b.counters[0], 0, &b.stats, at, 4);
+        0
     }
 
-    /// Records one round of lane `l` (its rays in list `cur`) and the copies of the new live
-    /// count and the stats into the lane's read-back; timestamps as `stamps` says. Returns the
-    /// list the next round reads.
+    /// Records one round of lane `l` (its rays in list `cur`; with `opening`, a batch's first
+    /// round of primary rays, which makes them) and the copies of the new live count and the
+    /// stats into the lane's read-back; timestamps as `stamps` says. Returns the list the next
+    /// round reads.
     pub(super) fn record_round(
         &self,
         enc: &mut wgpu::CommandEncoder,
         l: usize,
-        cur: usize,
+        (cur, opening): (usize, bool),
         (first, last): (bool, bool),
     ) -> usize {
         let (b, _, bound) = self.lane(l);
         let k = &self.kernels;
         let o = 1 - cur;
-        let ind = Dispatch::Indirect(&b.counters[cur]);
-        // A frame that sets nothing aside runs the kernel without the set-aside code.
-        let (trace, trace_bound) = match (&k.traverse_suspending, &bound.traverse_suspending) {
-            (Some(t), Some(b)) if self.params.dc_defer == 0 => (t, &b[cur]),
-            _ => (&k.traverse, &bound.traverse[cur]),
-        };
-        trace.dispatch(enc, trace_bound, ind, self.stamps(first, false));
+        let stamps = self.stamps(first, false);
+        if opening {
+            let slots = Dispatch::Over(self.params.batch_rays);
+            k.traverse_first
+                .dispatch(enc, &bound.traverse_first, slots, stamps);
+            let (at, _) = member!(opened, u32);
+            enc.copy_buffer_to_buffer(&b.counters[o], 0, &b.readback, at, 4);
+        } else {
+            let ind = Dispatch::Indirect(&b.counters[cur]);
+            // A frame that sets nothing aside runs the kernel without the set-aside code.
+            let (trace, trace_bound) = match (&k.traverse_suspending, &bound.traverse_suspending) {
+                (Some(t), Some(b)) if self.params.dc_defer == 0 => (t, &b[cur]),
+                _ => (&k.traverse, &bound.traverse[cur]),
+            };
+            trace.dispatch(enc, trace_bound, ind, stamps);
+        }
         let groups = Dispatch::Over(1);
         k.args
             .dispatch(enc, &bound.args[o], groups, self.stamps(false, last));
@@ -92,26 +114,28 @@ impl Tracer<'_> {
         o
     }
 
-    /// Trace rounds until no ray is live, starting from the live list and counter 0 that `enc`
-    /// has already prepared (with the first `args` dispatch recorded). Returns the live count
-    /// the first round started with (`RoundReadback::started`, which ray generation copies).
+    /// Trace rounds until no ray is live, starting from what `enc` has prepared (`cur`, the list
+    /// the first round reads; `primary`: the first round makes the batch's primary rays).
     pub(super) fn run_rounds(
         &mut self,
         mut enc: wgpu::CommandEncoder,
+        mut cur: usize,
+        primary: bool,
         stats: &mut FrameStats,
-    ) -> Result<u32> {
+    ) -> Result<Traced> {
         let gpu = self.gpu;
-        let mut started = None;
+        let mut traced = None;
         // `cur` is the counter holding the live rays of the next round. With a cache, faults are
         // served after every round; without, several rounds go in one submission.
-        let mut cur = 0usize;
         let mut per_check = if self.dc.is_some() { 1 } else { 2u32 };
         let mut live_rounds = 0u32;
         // The batch's steps and live rays after the last round: `stalled`.
         let mut last = (0u32, u32::MAX);
         loop {
             for i in 0..per_check {
-                cur = self.record_round(&mut enc, 0, cur, (i == 0, i + 1 == per_check));
+                let opening = primary && live_rounds + i == 0;
+                let ends = (i == 0, i + 1 == per_check);
+                cur = self.record_round(&mut enc, 0, (cur, opening), ends);
             }
             let b = &self.batch;
             if let Some((q, resolve)) = &b.timestamps {
@@ -129,9 +153,10 @@ impl Tracer<'_> {
             // Mapped bytes carry no alignment promise: read them unaligned.
             let r: RoundReadback = bytemuck::pod_read_unaligned(&data);
             let s = r.stats;
-            if started.is_none() {
-                started = Some(r.started);
-            }
+            let traced = *traced.get_or_insert(Traced {
+                started: s.started,
+                opened: primary.then_some(r.opened),
+            });
             let gpu_ms = self.round_gpu_ms(&r, stats);
             self.check_overflows(&s)?;
             enc = gpu.device.create_command_encoder(&Default::default());
@@ -158,7 +183,7 @@ impl Tracer<'_> {
             }
             if r.counter.count == 0 {
                 add_batch_stats(stats, &s, live_rounds);
-                return Ok(started.unwrap_or(0));
+                return Ok(traced);
             }
             if self.dc.is_none() {
                 per_check = (per_check * 2).min(16);

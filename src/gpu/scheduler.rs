@@ -275,7 +275,8 @@ impl Tracer<'_> {
     }
 
     /// Starts the next pending batch, if any, in free lane `l`: its tiles (`batch_tiles`; the
-    /// rest of its rectangle's go back to the front of the queue) and its ray generation.
+    /// rest of its rectangle's go back to the front of the queue) and its buffers; its first
+    /// round makes its rays.
     fn start_batch(
         &mut self,
         s: &mut Scheduler,
@@ -306,7 +307,7 @@ impl Tracer<'_> {
         self.set_rect(run.rect, run.tiling);
         self.params.first_tile = run.first;
         self.params.batch_rays = run.tiles * TILE_RAYS;
-        self.record_start(enc, l, Gen::Primary);
+        run.list = self.record_start(enc, l, Gen::Primary);
         run.age = s.started_batches;
         s.started_batches += 1;
         s.runs[l] = Some(run);
@@ -319,7 +320,7 @@ impl Tracer<'_> {
         for (i, &l) in active.iter().enumerate() {
             let run = s.run(l);
             let ends = (i == 0, i + 1 == active.len());
-            run.list = self.record_round(enc, l, run.list, ends);
+            run.list = self.record_round(enc, l, (run.list, run.rounds == 0), ends);
             run.rounds += 1;
         }
         if let (Some((q, resolve)), Some(&l)) = (&self.batch.timestamps, active.first()) {
@@ -351,7 +352,8 @@ impl Tracer<'_> {
                 out.gpu_ms = self.round_gpu_ms(&r, stats);
             }
             let run = s.run(l);
-            run.started.get_or_insert(r.started);
+            run.started.get_or_insert(r.stats.started);
+            run.opened.get_or_insert(r.opened);
             out.moved |= (r.stats.steps, r.counter.count) != (run.steps, run.live);
             run.steps = r.stats.steps;
             run.live = r.counter.count;
@@ -384,7 +386,8 @@ impl Tracer<'_> {
         self.params.batch_rays = run.tiles * TILE_RAYS;
         self.swap_lanes(l);
         let place = (run.rect, run.tiling);
-        let shaded = self.shade_batch((run.first, run.tiles), place, &mut rect.pixels, stats);
+        let (span, opened) = ((run.first, run.tiles), run.opened);
+        let shaded = self.shade_batch(span, place, opened, &mut rect.pixels, stats);
         self.swap_lanes(l);
         shaded?;
         rect.batches -= 1;
@@ -478,8 +481,10 @@ struct LaneRun {
     tiles: u32,
     /// The live list its next round reads.
     list: usize,
-    /// The rays it started with (known after its first round) and those still live.
+    /// The rays it started with and those its first round left live (known after that round),
+    /// and those still live.
     started: Option<u32>,
+    opened: Option<u32>,
     live: u32,
     rounds: u32,
     /// Its steps so far (`Stats::steps`), to tell a round that moved no ray (`stalled`).
@@ -510,6 +515,7 @@ impl LaneRun {
             tiles,
             list: 0,
             started: None,
+            opened: None,
             live: 0,
             rounds: 0,
             steps: 0,

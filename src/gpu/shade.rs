@@ -48,15 +48,18 @@ impl Tracer<'_> {
             self.params.flags = sample_flags(sh, basis, s);
             let t = Instant::now();
             self.params.albedo_stride = 1;
-            stats.traced_rays += u64::from(self.traverse_batch(stats, Gen::Primary)?);
+            let traced = self.traverse_batch(stats, Gen::Primary)?;
+            stats.traced_rays += u64::from(traced.started);
             let t2 = Instant::now();
             stats.trace_seconds += (t2 - t).as_secs_f64();
             self.resolve_albedos(stats)?;
-            self.run(&self.kernels.shade, &self.bound.shade);
+            if !self.all_shaded(traced.opened) {
+                self.run(&self.kernels.shade, &self.bound.shade);
+            }
             for _ in 0..waves {
                 let t = Instant::now();
                 self.params.albedo_stride = fan;
-                let live = self.traverse_batch(stats, Gen::Secondary { fan })?;
+                let live = self.traverse_batch(stats, Gen::Secondary { fan })?.started;
                 stats.trace_seconds += t.elapsed().as_secs_f64();
                 // Only path tracing shades the hits of secondary rays.
                 if sh.mode == Mode::Path {
@@ -80,16 +83,29 @@ impl Tracer<'_> {
         Ok(())
     }
 
-    /// Resolves albedos, shades and reads back the current lane's traced batch.
+    /// Whether a batch's first round of primary rays wrote every pixel: it shades the rays that
+    /// end in it (`first_round_shades` in shaders/shared/pixel.wgsl: cast mode, no colour by
+    /// data) and left `opened` rays live.
+    pub(super) fn all_shaded(&self, opened: Option<u32>) -> bool {
+        self.settings.shading.mode == Mode::Cast
+            && self.kernels.albedo.is_none()
+            && opened == Some(0)
+    }
+
+    /// Resolves albedos, shades (unless the first round shaded every ray: `opened`, `all_shaded`)
+    /// and reads back the current lane's traced batch.
     pub(super) fn shade_batch(
         &mut self,
         (first, tiles): (u32, u32),
         place: (Rect, Tiling),
+        opened: Option<u32>,
         pixels: &mut [Pixel],
         stats: &mut FrameStats,
     ) -> Result<()> {
         self.resolve_albedos(stats)?;
-        self.run(&self.kernels.shade, &self.bound.shade);
+        if !self.all_shaded(opened) {
+            self.run(&self.kernels.shade, &self.bound.shade);
+        }
         self.read_pixels(first, tiles, place, 1, pixels)?;
         stats.batches += 1;
         Ok(())

@@ -250,7 +250,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<Counter>());
     let w = same_layout!(Stats, "Stats", {
         "steps" => steps, "tri_tests" => tri_tests, "overflows" => overflows,
-        "suspended" => suspended, "unused0" => unused0, "hits" => hits, "misses" => misses,
+        "suspended" => suspended, "started" => started, "hits" => hits, "misses" => misses,
         "node_visits" => node_visits, "block_entries" => block_entries,
         "tri_block_entries" => tri_block_entries, "subgroup_steps" => subgroup_steps,
         "subgroup_size" => subgroup_size,

@@ -8,6 +8,7 @@ use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
+use dcrt::shading::{Mode, Shading};
 
 fn rm() -> (Model, Camera) {
     let scene = Scene::generated(Generator::Rm, 30_000, 96, 96);
@@ -49,11 +50,11 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
         assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
     }
-    // The last batch's rays all finished (none left suspended or overflowed).
+    // The last batch's rays all finished (none left suspended or overflowed); in cast mode a ray
+    // that ends in the first round is shaded there.
     let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
-    let bad = rays
-        .iter()
-        .position(|r| r.status != status::DONE && r.status != status::OUTSIDE);
+    let ended = [status::DONE, status::OUTSIDE, status::SHADED];
+    let bad = rays.iter().position(|r| !ended.contains(&r.status));
     assert_eq!(rays.len() as u32, tracer.params().batch_rays);
     assert!(
         bad.is_none(),
@@ -61,6 +62,48 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
         bad.map(|i| rays[i])
     );
     assert!(rays.iter().any(|r| r.steps > 5 * 4));
+}
+
+/// In cast mode a batch's first round writes the pixel of every ray that ends in it and the shade
+/// kernel the others': over several jittered samples (summed in place), the two give the same
+/// bits. With a budget of one step almost every ray is left to the shade kernel.
+#[test]
+fn cast_pixels_of_the_first_round_equal_the_shade_kernel_s() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let shading = Shading {
+        mode: Mode::Cast,
+        spp: 3,
+        ..Shading::default()
+    };
+    let at = |step_budget| {
+        let s = Settings {
+            step_budget,
+            shading,
+            ..Settings::default()
+        };
+        let mut tracer = prepared.tracer(&gpu, s).unwrap();
+        let (frame, _) = tracer
+            .render(&camera.basis(96, 96), [0.1, 0.2, 0.3])
+            .unwrap();
+        let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
+        let shaded = rays.iter().filter(|r| r.status == status::SHADED).count();
+        (frame, shaded as f64 / rays.len() as f64)
+    };
+    let (first, in_first) = at(Settings::default().step_budget);
+    let (later, in_later) = at(1);
+    assert!(
+        in_first > 0.99,
+        "{in_first} of the rays shaded in the first round"
+    );
+    assert!(
+        in_later < 0.5,
+        "{in_later} of the rays shaded in the first round at budget 1"
+    );
+    for (i, (p, q)) in first.pixels.iter().zip(&later.pixels).enumerate() {
+        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
+    }
 }
 
 /// A frame's `steps` is the sum of its rays' own: the traversal kernel's per-workgroup sum of its

@@ -99,9 +99,13 @@ struct BenchRow {
     /// Steps over the loop iterations the trace's lanes ran, busy or idle (`FrameStats::
     /// lane_steps`, from the block-count frame): the share of lanes doing work.
     lane_use: f64,
-    /// Of the last run: share of the frame in raygen + traversal rounds, and in shade + readback.
+    /// Of the last run: share of the frame in traversal rounds (submission, waits and host work
+    /// included), and in shade + readback.
     trace_share: f64,
     shade_share: f64,
+    /// Of the last run: share of the frame the GPU spent in traversal rounds, from its
+    /// timestamps (first trace pass to last `args` pass of each check); 0 without timestamps.
+    gpu_share: f64,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -377,6 +381,7 @@ fn measure(
         lane_use: counted.steps as f64 / counted.lane_steps.max(1) as f64,
         trace_share: s.trace_seconds / s.seconds,
         shade_share: s.shade_seconds / s.seconds,
+        gpu_share: s.gpu_seconds / s.seconds,
     })
 }
 
@@ -483,6 +488,7 @@ fn print(report: &BenchReport) {
         ("lanes%", 6),
         ("trace%", 6),
         ("shade%", 6),
+        ("gpu%", 5),
     ]);
     t.header();
     for r in &report.rows {
@@ -503,6 +509,7 @@ fn print(report: &BenchReport) {
             format!("{:.0}", r.lane_use * 100.0),
             format!("{:.0}", r.trace_share * 100.0),
             format!("{:.0}", r.shade_share * 100.0),
+            format!("{:.0}", r.gpu_share * 100.0),
         ]);
     }
     if let Some(p) = &report.peer {
