@@ -488,7 +488,7 @@ impl<'g> Tracer<'g> {
                 ))
             });
         }
-        let mut pixels = vec![Pixel::default(); rect.pixels()];
+        let mut pixels = Pixel::zeroed_vec(rect.pixels());
         let mut first = 0;
         let mut passed = 0u64;
         while first < tiles {
