@@ -13,7 +13,6 @@
 @group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
 @group(1) @binding(1) var<storage, read_write> pixels: array<Pixel>;
 @group(1) @binding(2) var<storage, read_write> paths: array<Path>;
-@group(1) @binding(3) var<storage, read> shading: ShadeParams;
 // Colour by data: the albedo kernel's colour of each hit on a mesh coloured by data.
 @group(1) @binding(4) var<storage, read> albedos: array<vec4<f32>>;
 

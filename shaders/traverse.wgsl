@@ -7,9 +7,10 @@
 // The closest hit is the nearest, and of equally near ones the lowest triangle index, so the
 // order in which faults let a ray visit its subtrees never changes the image.
 //
-// A batch of primary rays starts with a round built with FIRST_ROUND: it makes each slot's camera
-// ray in registers (camera_ray) instead of loading what a ray generation kernel would have stored,
-// and in cast mode without colour by data it writes the pixel of every ray that ends in it.
+// A batch of primary rays, and each wave of secondary rays, starts with a round built with
+// FIRST: it makes each slot's ray in registers (camera_ray, spawn_ray) instead of loading
+// what a kernel of its own would have stored, and in cast mode without colour by data it writes
+// the pixel of every camera ray that ends in it.
 #import params
 #import ray
 #import blocks
@@ -19,6 +20,7 @@
 #import offset
 #import camera
 #import pixel
+#import spawn
 
 
 @group(1) @binding(0) var<storage, read_write> rays: array<RayGroups>;
@@ -35,8 +37,7 @@ struct Stats {
     tri_tests: atomic<u32>,
     overflows: atomic<u32>,
     suspended: atomic<u32>,
-    // Rays that entered traversal in the first round (FIRST_ROUND); the host copies a wave's
-    // spawned count here.
+    // Rays that entered traversal in the first round (FIRST).
     started: atomic<u32>,
     hits: atomic<u32>,
     misses: atomic<u32>,
@@ -53,12 +54,17 @@ struct Stats {
     subgroup_size: atomic<u32>,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
-// FIRST_ROUND with first_round_shades(): the pixels of the rays that end in the round.
+// FIRST_CAMERA with first_round_shades(): the pixels of the rays that end in the round.
 @group(1) @binding(7) var<storage, read_write> pixels: array<Pixel>;
+// FIRST_SPAWN: the paths its rays leave.
+@group(1) @binding(8) var<storage, read> paths: array<Path>;
 
-// The kernel of a batch's first round of primary rays: one invocation per batch slot (not per
-// live ray), each tracing the camera ray of its slot (see the top of this file).
-override FIRST_ROUND: bool = false;
+// The kernel of a first round (see the top of this file): one invocation per ray slot (not per
+// live ray), each making and tracing the ray of its slot: FIRST_CAMERA for a batch's primary
+// rays, FIRST_SPAWN for a wave's secondary rays (`shading.fan` slots a pixel slot).
+const FIRST_CAMERA: u32 = 1u;
+const FIRST_SPAWN: u32 = 2u;
+override FIRST: u32 = 0u;
 
 // How many strands of the batch's tiles the first round's workgroups interleave (spread_slot).
 const SPREAD: u32 = 16u;
@@ -68,8 +74,8 @@ const SPREAD: u32 = 16u;
 // each of its threads one contiguous range of a dispatch's workgroups: in tile order, one thread
 // would get the top of the image and another the bottom, however unequal their work (the rays
 // of later rounds come from live lists the threads fill together, interleaved).
-fn spread_slot(i: u32) -> u32 {
-    let groups = params.batch_rays / WORKGROUP;
+fn spread_slot(i: u32, slots: u32) -> u32 {
+    let groups = slots / WORKGROUP;
     let w = i / WORKGROUP;
     let q = groups / SPREAD;
     let rest = groups % SPREAD;
@@ -223,13 +229,23 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     // The ray this invocation traces, if `go`.
     var r = new_ray(vec3(0.0), vec3(0.0), 0.0, OUTSIDE, 0u, NONE);
     var go = false;
-    // FIRST_ROUND: a batch slot, and whether its ray entered traversal.
-    let slot = FIRST_ROUND && gid.x < params.batch_rays;
+    // A first round: a ray slot, and whether its ray entered traversal.
+    var slots = params.batch_rays;
+    if FIRST == FIRST_SPAWN {
+        slots *= shading.fan;
+    }
+    let slot = FIRST != 0u && gid.x < slots;
     var entered = 0u;
-    if FIRST_ROUND {
+    if FIRST != 0u {
         if slot {
-            ray_index = spread_slot(gid.x);
-            r = camera_ray(ray_index);
+            ray_index = spread_slot(gid.x, slots);
+            if FIRST == FIRST_SPAWN {
+                let fan = shading.fan;
+                let i = ray_index / fan;
+                r = spawn_ray(paths[i], ray_index - i * fan);
+            } else {
+                r = camera_ray(ray_index);
+            }
             go = r.status == LIVE;
             entered = u32(go);
         }
@@ -550,7 +566,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         r.steps += iters;
         r.cur_index = cur.x;
         r.cur_count = cur.y;
-        if !FIRST_ROUND {
+        if FIRST == 0u {
             let w = ray_groups(r);
             rays[ray_index].g[0].w = w.g[0].w;
             rays[ray_index].g[1].w = w.g[1].w;
@@ -572,7 +588,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     // The first round's slot, traced or not: its pixel when the ray has ended and the round
     // shades, else its whole state (no earlier kernel stored any).
     if slot {
-        if first_round_shades() && r.status != LIVE {
+        if FIRST == FIRST_CAMERA && first_round_shades() && r.status != LIVE {
             var before = Pixel();
             if (params.flags & FIRST_SAMPLE) == 0u {
                 before = pixels[ray_index];
@@ -595,11 +611,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         sub_steps = subgroupMax(counts.x);
     }
     var sub_started = 0u;
-    if FIRST_ROUND {
+    if FIRST != 0u {
         sub_started = subgroupAdd(entered);
     }
     if sgi == 0u {
-        if FIRST_ROUND {
+        if FIRST != 0u {
             atomicAdd(&stats.started, sub_started);
         }
         atomicAdd(&stats.steps, sub_counts.x);

@@ -31,6 +31,10 @@ struct ShadeParams {
     lights: array<Light, MAX_LIGHTS>,
 }
 
+// The shading parameters of the render (one buffer; the modes' kernels and a wave's first
+// traversal round read it).
+@group(0) @binding(8) var<storage, read> shading: ShadeParams;
+
 const MODE_CAST: u32 = 0u;
 const MODE_SHADOWS: u32 = 1u;
 const MODE_AO: u32 = 2u;

@@ -217,11 +217,16 @@ impl Kernel {
 }
 
 /// The pipelines of a shading mode: each carries only its mode's code (`MODE` is a pipeline
-/// constant), and modes without secondary rays get no spawn or gather pipeline.
+/// constant), and modes without secondary rays get no spawning first round, spawn or gather pipeline.
 pub struct Kernels {
-    /// `traverse` built for a batch's first round of primary rays (`FIRST_ROUND`): it makes the
+    /// `traverse` built for a batch's first round of primary rays (`FIRST` 1): it makes the
     /// camera rays, and in cast mode writes the pixels of those that end in it.
     pub traverse_first: Kernel,
+    /// `traverse` built for a wave's first round (`FIRST` 2): it makes the secondary rays from
+    /// the paths. Modes without secondary rays have none.
+    pub traverse_spawn: Option<Kernel>,
+    /// A path's later waves (`rounds::Gen::Spawned`).
+    pub spawn: Option<Kernel>,
     pub traverse: Kernel,
     /// With a cache, `traverse` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
     /// nothing aside (`Params::dc_defer` 0): a CPU driver runs the set-aside code of a loop pass
@@ -231,7 +236,6 @@ pub struct Kernels {
     /// With a cache, after each round: the listed faults' requesters into the fault list.
     pub requesters: Kernel,
     pub shade: Kernel,
-    pub spawn: Option<Kernel>,
     pub gather: Option<Kernel>,
     /// Colour by data: only models with attribute blocks get it.
     pub albedo: Option<Kernel>,
@@ -249,16 +253,20 @@ impl Kernels {
             c.count(Override::DeferSlots, 0);
             Kernel::new(gpu, "traverse", store, &c)
         });
-        let mut first = c.clone();
-        first.flag(Override::FirstRound, true);
+        let first = |which| {
+            let mut c = c.clone();
+            c.count(Override::First, which);
+            Kernel::new(gpu, "traverse", store, &c)
+        };
         Kernels {
-            traverse_first: Kernel::new(gpu, "traverse", store, &first),
+            traverse_first: first(1),
+            traverse_spawn: waves.then(|| first(2)),
+            spawn: waves.then(|| k("spawn")),
             traverse: k("traverse"),
             traverse_suspending: suspending,
             args: k("args"),
             requesters: k("requesters"),
             shade: k("shade"),
-            spawn: waves.then(|| k("spawn")),
             gather: waves.then(|| k("gather")),
             albedo: albedo.then(|| k("albedo")),
         }

@@ -13,15 +13,16 @@ use std::mem::size_of;
 
 /// The kernels' bind groups over this tracer's buffers.
 pub(super) struct BoundKernels {
-    /// Reads no list; appends to list 0, as `spawn` does.
+    /// Read no list; append to list 0.
     pub traverse_first: Bound,
+    pub traverse_spawn: Option<Bound>,
+    pub spawn: Option<Bound>,
     /// Indexed by the live list the round reads.
     pub traverse: [Bound; 2],
     pub traverse_suspending: Option<[Bound; 2]>,
     pub args: [Bound; 2],
     pub requesters: Bound,
     pub shade: Bound,
-    pub spawn: Option<Bound>,
     pub gather: Option<Bound>,
     pub albedo: Option<Bound>,
 }
@@ -167,6 +168,7 @@ impl Tracer<'_> {
             args: each(&k.args),
             requesters: k.requesters.bind(gpu, with(fill)),
             shade: k.shade.bind(gpu, with(fill)),
+            traverse_spawn: k.traverse_spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             spawn: k.spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             gather: k.gather.as_ref().map(|g| g.bind(gpu, with(fill))),
             albedo: k.albedo.as_ref().map(|a| a.bind(gpu, with(fill))),
@@ -199,6 +201,7 @@ impl BoundKernels {
             args: [Bound::empty(), Bound::empty()],
             requesters: Bound::empty(),
             shade: Bound::empty(),
+            traverse_spawn: None,
             spawn: None,
             gather: None,
             albedo: None,

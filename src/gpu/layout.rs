@@ -200,8 +200,8 @@ pub struct Stats {
     pub overflows: u32,
     /// Rays that stopped on a fault this round.
     pub suspended: u32,
-    /// Rays that entered traversal: counted by a batch's first round of primary rays, copied
-    /// from a wave's spawned count.
+    /// Rays that entered traversal: counted by a first round that makes its rays, copied from
+    /// the count of a spawned wave.
     pub started: u32,
     /// Cache consultations (blocks neither owned nor the root): how they went.
     pub hits: u32,

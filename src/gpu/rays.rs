@@ -71,7 +71,7 @@ impl Tracer<'_> {
             self.kernels
                 .args
                 .dispatch(&mut enc, args, Dispatch::Over(1), None);
-            self.run_rounds(enc, 0, false, &mut stats)?;
+            self.run_rounds(enc, 0, None, &mut stats)?;
             stats.batches += 1;
             out.extend(self.read_rays(n)?.into_iter().map(|r| {
                 (r.status == status::DONE && r.hit != NONE).then_some(RayHit {

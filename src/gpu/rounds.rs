@@ -1,7 +1,8 @@
 //! The round loop (docs/ARCHITECTURE.md, The round loop): a batch's rays are traced in rounds of
 //! `traverse` (each live ray runs at most `step_budget` loop iterations, then saves its state) and
 //! `args` (the count of rays still live becomes the next round's indirect dispatch). A batch of
-//! primary rays starts with `traverse_first`, which makes the camera rays itself. With a
+//! primary rays starts with `traverse_first`, which makes the camera rays itself, and a wave of
+//! secondary rays with `traverse_spawn`, which makes them from the paths. With a
 //! distributed cache, every round's faults are read back and served (`dc::policy` decides,
 //! the block source fetches, the store and the row table are updated) before the next round;
 //! without one, several rounds go in one submission.
@@ -23,29 +24,36 @@ pub(super) struct Traced {
     pub opened: Option<u32>,
 }
 
-/// What starts a batch's traversal rounds: primary rays (made by its first round), or a wave of
-/// secondary rays (made by `spawn`).
+/// What starts a batch's traversal rounds.
 #[derive(Clone, Copy, PartialEq)]
 pub(super) enum Gen {
+    /// Camera rays, made by the first round.
     Primary,
+    /// A wave of `fan` secondary rays a pixel slot, made by the first round: a wave in which
+    /// nearly every path is alive (ambient occlusion, shadows, a path's first bounce).
     Secondary { fan: u32 },
+    /// A wave made by the `spawn` kernel, which compacts the live rays: a path's later waves,
+    /// whose dead paths are scattered through the slots (docs/notes/2026-12-first-round.md).
+    Spawned { fan: u32 },
 }
 
 impl Tracer<'_> {
-    /// Generates the batch's rays (primary, or a wave of secondary rays) and runs traversal rounds
-    /// until none is live: secondary rays fault, suspend and resume exactly as primary rays do.
-    /// Returns how many rays entered traversal.
+    /// Runs traversal rounds over the batch's rays (primary, or a wave of secondary rays, made by
+    /// the first round) until none is live: secondary rays fault, suspend and resume exactly as
+    /// primary rays do.
     pub(super) fn traverse_batch(&mut self, stats: &mut FrameStats, gen_: Gen) -> Result<Traced> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
         let cur = self.record_start(&mut enc, 0, gen_);
-        self.run_rounds(enc, cur, gen_ == Gen::Primary, stats)
+        let opening = (!matches!(gen_, Gen::Spawned { .. })).then_some(gen_);
+        self.run_rounds(enc, cur, opening, stats)
     }
 
     /// Starts a batch in lane `l`: writes `Params` into its buffer and clears its counters and
-    /// stats; for a wave, records its spawn into list 0, `args` on counter 0 and the copy of the
-    /// spawned count into `Stats::started`. Returns the list the first round reads (for primary
-    /// rays, whose first round reads none, the one it leaves list 0 after: 1).
+    /// stats; for a spawned wave, records `spawn` into list 0, `args` on counter 0 and the copy
+    /// of the spawned count into `Stats::started`. Returns the list the first round reads (a
+    /// round that makes its rays reads none, and leaves its live rays in list 0, the list after
+    /// 1).
     pub(super) fn record_start(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -63,7 +71,7 @@ impl Tracer<'_> {
         }
         enc.clear_buffer(&b.stats, 0, None);
         let k = &self.kernels;
-        let (Gen::Secondary { fan }, Some(spawn), Some(sb)) = (gen_, &k.spawn, &bound.spawn) else {
+        let (Gen::Spawned { fan }, Some(spawn), Some(sb)) = (gen_, &k.spawn, &bound.spawn) else {
             return 1;
         };
         spawn.dispatch(enc, sb, Dispatch::Over(self.params.batch_rays * fan), None);
@@ -74,27 +82,30 @@ impl Tracer<'_> {
         0
     }
 
-    /// Records one round of lane `l` (its rays in list `cur`; with `opening`, a batch's first
-    /// round of primary rays, which makes them) and the copies of the new live count and the
-    /// stats into the lane's read-back; timestamps as `stamps` says. Returns the list the next
-    /// round reads.
+    /// Records one round of lane `l` (its rays in list `cur`; with `opening`, a first round,
+    /// which makes them) and the copies of the new live count and the stats into the lane's
+    /// read-back; timestamps as `stamps` says. Returns the list the next round reads.
     pub(super) fn record_round(
         &self,
         enc: &mut wgpu::CommandEncoder,
         l: usize,
-        (cur, opening): (usize, bool),
+        (cur, opening): (usize, Option<Gen>),
         (first, last): (bool, bool),
     ) -> usize {
         let (b, _, bound) = self.lane(l);
         let k = &self.kernels;
         let o = 1 - cur;
         let stamps = self.stamps(first, false);
-        if opening {
-            let slots = Dispatch::Over(self.params.batch_rays);
+        let rays = self.params.batch_rays;
+        let spawn = (&k.traverse_spawn, &bound.traverse_spawn);
+        if let Some(Gen::Primary) = opening {
+            let slots = Dispatch::Over(rays);
             k.traverse_first
                 .dispatch(enc, &bound.traverse_first, slots, stamps);
             let (at, _) = member!(opened, u32);
             enc.copy_buffer_to_buffer(&b.counters[o], 0, &b.readback, at, 4);
+        } else if let (Some(Gen::Secondary { fan }), (Some(t), Some(tb))) = (opening, spawn) {
+            t.dispatch(enc, tb, Dispatch::Over(rays * fan), stamps);
         } else {
             let ind = Dispatch::Indirect(&b.counters[cur]);
             // A frame that sets nothing aside runs the kernel without the set-aside code.
@@ -115,12 +126,12 @@ impl Tracer<'_> {
     }
 
     /// Trace rounds until no ray is live, starting from what `enc` has prepared (`cur`, the list
-    /// the first round reads; `primary`: the first round makes the batch's primary rays).
+    /// the first round reads; `opening`: the rays the first round makes, if it makes them).
     pub(super) fn run_rounds(
         &mut self,
         mut enc: wgpu::CommandEncoder,
         mut cur: usize,
-        primary: bool,
+        opening: Option<Gen>,
         stats: &mut FrameStats,
     ) -> Result<Traced> {
         let gpu = self.gpu;
@@ -133,9 +144,9 @@ impl Tracer<'_> {
         let mut last = (0u32, u32::MAX);
         loop {
             for i in 0..per_check {
-                let opening = primary && live_rounds + i == 0;
+                let makes = opening.filter(|_| live_rounds + i == 0);
                 let ends = (i == 0, i + 1 == per_check);
-                cur = self.record_round(&mut enc, 0, (cur, opening), ends);
+                cur = self.record_round(&mut enc, 0, (cur, makes), ends);
             }
             let b = &self.batch;
             if let Some((q, resolve)) = &b.timestamps {
@@ -155,7 +166,7 @@ impl Tracer<'_> {
             let s = r.stats;
             let traced = *traced.get_or_insert(Traced {
                 started: s.started,
-                opened: primary.then_some(r.opened),
+                opened: (opening == Some(Gen::Primary)).then_some(r.opened),
             });
             let gpu_ms = self.round_gpu_ms(&r, stats);
             self.check_overflows(&s)?;

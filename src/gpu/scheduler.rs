@@ -320,7 +320,8 @@ impl Tracer<'_> {
         for (i, &l) in active.iter().enumerate() {
             let run = s.run(l);
             let ends = (i == 0, i + 1 == active.len());
-            run.list = self.record_round(enc, l, (run.list, run.rounds == 0), ends);
+            let makes = (run.rounds == 0).then_some(Gen::Primary);
+            run.list = self.record_round(enc, l, (run.list, makes), ends);
             run.rounds += 1;
         }
         if let (Some((q, resolve)), Some(&l)) = (&self.batch.timestamps, active.first()) {

@@ -56,10 +56,15 @@ impl Tracer<'_> {
             if !self.all_shaded(traced.opened) {
                 self.run(&self.kernels.shade, &self.bound.shade);
             }
-            for _ in 0..waves {
+            for wave in 0..waves {
                 let t = Instant::now();
                 self.params.albedo_stride = fan;
-                let live = self.traverse_batch(stats, Gen::Secondary { fan })?.started;
+                let gen_ = if wave < self.settings.spawned_waves_from {
+                    Gen::Secondary { fan }
+                } else {
+                    Gen::Spawned { fan }
+                };
+                let live = self.traverse_batch(stats, gen_)?.started;
                 stats.trace_seconds += t.elapsed().as_secs_f64();
                 // Only path tracing shades the hits of secondary rays.
                 if sh.mode == Mode::Path {

@@ -79,6 +79,10 @@ pub struct Settings {
     /// cost the trace loop time (`BLOCK_COUNTS` in shaders/traverse.wgsl), and the benchmarks take
     /// them from a frame of their own (`Tracer::set_block_counts`).
     pub block_counts: bool,
+    /// The first wave of a sample made by the `spawn` kernel instead of by its first traversal
+    /// round (`rounds::Gen`): 1, a path's later waves, whose dead paths `spawn` compacts away.
+    /// Tests set it to 0 and to `u32::MAX` to compare the two makers of a wave.
+    pub spawned_waves_from: u32,
 }
 
 impl Settings {
@@ -108,6 +112,7 @@ impl Default for Settings {
             shading: Shading::default(),
             fault_cap: FAULT_CAP,
             block_counts: false,
+            spawned_waves_from: 1,
         }
     }
 }

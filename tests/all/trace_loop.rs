@@ -106,6 +106,43 @@ fn cast_pixels_of_the_first_round_equal_the_shade_kernel_s() {
     }
 }
 
+/// A wave of secondary rays is made by its first traversal round or by the `spawn` kernel (a
+/// path's later waves): both make the same rays. Path tracing with a sun (two rays a bounce) and
+/// ambient occlusion, every wave made each way, give the same bits.
+#[test]
+fn a_wave_made_by_its_first_round_equals_a_spawned_one() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    // The default path shading has a sun: a sun ray and a bounce a wave.
+    for mode in [Mode::Path, Mode::Ao] {
+        let shading = Shading {
+            mode,
+            spp: 2,
+            max_depth: 3,
+            ao_rays: 4,
+            ..Shading::default()
+        };
+        assert!(shading.fan() > 1, "{mode:?}: several rays a wave");
+        let frame = |spawned_waves_from| {
+            let s = Settings {
+                shading,
+                spawned_waves_from,
+                ..Settings::default()
+            };
+            render(&gpu, &prepared, &camera, 48, 48, s).0
+        };
+        let spawned = frame(0);
+        for from in [1, u32::MAX] {
+            let made = frame(from);
+            for (i, (p, q)) in spawned.pixels.iter().zip(&made.pixels).enumerate() {
+                let (p, q) = (bytemuck::bytes_of(p), bytemuck::bytes_of(q));
+                assert_eq!(p, q, "{mode:?}, waves spawned from {from}: pixel {i}");
+            }
+        }
+    }
+}
+
 /// A frame's `steps` is the sum of its rays' own: the traversal kernel's per-workgroup sum of its
 /// invocations' counts (`wg_counts`) loses none.
 #[test]
