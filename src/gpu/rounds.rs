@@ -33,7 +33,7 @@ pub(super) enum Gen {
     /// nearly every path is alive (ambient occlusion, shadows, a path's first bounce).
     Secondary { fan: u32 },
     /// A wave made by the `spawn` kernel, which compacts the live rays: a path's later waves,
-    /// whose dead paths are scattered through the slots (docs/notes/2026-12-first-round.md).
+    /// whose dead paths are scattered through the slots (docs/ARCHITECTURE.md, The round loop).
     Spawned { fan: u32 },
 }
 

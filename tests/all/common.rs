@@ -40,6 +40,19 @@ pub fn render(
     tracer.render(&camera.basis(w, h), [0.1, 0.2, 0.3]).unwrap()
 }
 
+/// Asserts that two frames hold the same pixels bit for bit (colours and AOVs), naming the first
+/// pixel that differs and `what` was compared.
+pub fn assert_same_pixels(a: &Frame, b: &Frame, what: &str) {
+    assert_eq!(a.pixels.len(), b.pixels.len(), "{what}: pixel counts");
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert_eq!(
+            bytemuck::bytes_of(p),
+            bytemuck::bytes_of(q),
+            "{what}: pixel {i}"
+        );
+    }
+}
+
 /// The reference hit of every pixel, through the same pixel-centre rays.
 pub fn reference(model: &Model, camera: &Camera, w: u32, h: u32) -> Vec<Option<Hit>> {
     let basis = camera.basis(w, h);

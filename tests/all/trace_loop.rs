@@ -47,9 +47,7 @@ fn small_step_budget_resumes_rays_to_the_same_image() {
     );
     assert!(sb.batches > 1, "several batches");
     assert_eq!(sa.steps, sb.steps, "the same traversal, only cut in pieces");
-    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
-        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
-    }
+    assert_same_pixels(&a, &b, "budget 5 against the default budget");
     // The last batch's rays all finished (none left suspended or overflowed); in cast mode a ray
     // that ends in the first round is shaded there.
     let rays = tracer.read_rays(tracer.params().batch_rays).unwrap();
@@ -101,9 +99,7 @@ fn cast_pixels_of_the_first_round_equal_the_shade_kernel_s() {
         in_later < 0.5,
         "{in_later} of the rays shaded in the first round at budget 1"
     );
-    for (i, (p, q)) in first.pixels.iter().zip(&later.pixels).enumerate() {
-        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
-    }
+    assert_same_pixels(&first, &later, "shaded in the first round against by shade");
 }
 
 /// A wave of secondary rays is made by its first traversal round or by the `spawn` kernel (a
@@ -134,11 +130,8 @@ fn a_wave_made_by_its_first_round_equals_a_spawned_one() {
         };
         let spawned = frame(0);
         for from in [1, u32::MAX] {
-            let made = frame(from);
-            for (i, (p, q)) in spawned.pixels.iter().zip(&made.pixels).enumerate() {
-                let (p, q) = (bytemuck::bytes_of(p), bytemuck::bytes_of(q));
-                assert_eq!(p, q, "{mode:?}, waves spawned from {from}: pixel {i}");
-            }
+            let what = format!("{mode:?}, waves spawned from {from}");
+            assert_same_pixels(&spawned, &frame(from), &what);
         }
     }
 }
@@ -182,9 +175,7 @@ fn batches_in_bands_give_the_same_image() {
     assert_eq!(sb.batches, 18);
     assert_eq!(tracer.params().band_tiles, 4, "bands, not rows");
     assert_eq!(sa.steps, sb.steps);
-    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
-        assert_eq!(bytemuck::bytes_of(p), bytemuck::bytes_of(q), "pixel {i}");
-    }
+    assert_same_pixels(&a, &b, "banded batches against one batch");
 }
 
 #[test]
