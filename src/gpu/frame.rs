@@ -60,7 +60,7 @@ pub struct FrameStats {
 }
 
 /// A traced frame: one `Pixel` per image pixel, row-major, y down.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Frame {
     pub width: u32,
     pub height: u32,

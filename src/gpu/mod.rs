@@ -366,6 +366,18 @@ impl Gpu {
 
     /// Like `map_read`, for the first `bytes` bytes only.
     pub fn map_read_prefix(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>> {
+        self.with_mapped(staging, bytes, <[u8]>::to_vec)
+    }
+
+    /// Maps the first `bytes` bytes of a MAP_READ buffer whose copies were submitted and hands
+    /// them to `read` in place: a large read-back (a frame's pixels) is not copied into a fresh
+    /// allocation first, whose page faults and copy cost more than the read itself.
+    pub fn with_mapped<R>(
+        &self,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+        read: impl FnOnce(&[u8]) -> R,
+    ) -> Result<R> {
         let slice = staging.slice(..bytes);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -375,12 +387,13 @@ impl Gpu {
         rx.recv()
             .map_err(|_| Error::Gpu("buffer map callback never ran".into()))?
             .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
-        let data = slice
-            .get_mapped_range()
-            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?
-            .to_vec();
+        let out = read(
+            &slice
+                .get_mapped_range()
+                .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?,
+        );
         staging.unmap();
-        Ok(data)
+        Ok(out)
     }
 }
 

@@ -262,7 +262,7 @@ impl Tracer<'_> {
                 all.per_batch = plan.per_batch;
                 s.pending.push_back(all);
                 s.total_tiles += u64::from(plan.tiles);
-                let pixels = Pixel::zeroed_vec(rect.pixels());
+                let pixels = self.take_pixels(rect.pixels());
                 s.open.push(Some(OpenRect { pixels, batches: 1 }));
                 stats.rays += rect.pixels() as u64;
                 stats.samples = self.params.spp;

@@ -229,6 +229,10 @@ pub struct Tracer<'g> {
     /// Whether a `render_rect` call of the frame took more than one batch: spare lanes are
     /// worth their memory (`add_spare_lanes`).
     pub(super) several_batches: bool,
+    /// A finished frame's pixels handed back (`recycle_pixels`) for the next rectangle of the
+    /// same size: its pages are mapped already, where a fresh allocation of a frame's pixels
+    /// page-faults on every 4 KiB the read-back writes.
+    pub(super) spare_pixels: Vec<Pixel>,
 }
 
 /// When a ray with a distributed cache goes on past a fault (docs/ARCHITECTURE.md, The round
@@ -390,6 +394,7 @@ impl<'g> Tracer<'g> {
             next_density: None,
             batches_fit: fits,
             several_batches: false,
+            spare_pixels: Vec::new(),
         };
         tracer.bound = tracer.bind_kernels();
         if fits {
@@ -413,6 +418,21 @@ impl<'g> Tracer<'g> {
             self.rebuild_kernels();
         }
         Ok(())
+    }
+
+    /// Hands a finished frame's pixels back, to be written over by the next rectangle of as many
+    /// pixels (every pixel of a rectangle is written by its batches' read-backs).
+    pub fn recycle_pixels(&mut self, pixels: Vec<Pixel>) {
+        self.spare_pixels = pixels;
+    }
+
+    /// The pixels for a rectangle of `n` pixels: the recycled ones when they are as many, else
+    /// zeroed.
+    pub(super) fn take_pixels(&mut self, n: usize) -> Vec<Pixel> {
+        match std::mem::take(&mut self.spare_pixels) {
+            spare if spare.len() == n => spare,
+            _ => Pixel::zeroed_vec(n),
+        }
     }
 
     /// Turns the block counts of every following frame on or off (`Settings::block_counts`);
@@ -493,7 +513,7 @@ impl<'g> Tracer<'g> {
                 ))
             });
         }
-        let mut pixels = Pixel::zeroed_vec(rect.pixels());
+        let mut pixels = self.take_pixels(rect.pixels());
         let mut first = 0;
         let mut passed = 0u64;
         while first < tiles {

@@ -7,6 +7,7 @@
 use crate::dc::CacheMap;
 use crate::error::Result;
 use crate::gpu::frame::{Frame, FrameStats, Rect};
+use crate::gpu::layout::Pixel;
 use crate::gpu::tracer::Tracer;
 use crate::scene::Camera;
 use crate::traces::record::{FrameSummary, FrameTrace};
@@ -146,29 +147,40 @@ pub fn run_frame(
 }
 
 /// The frames of one process: each the whole image at `width` x `height`, handed to `done` with
-/// its statistics once its clock stopped.
+/// its statistics once its clock stopped. `done` may keep a frame (`std::mem::take`); the pixels
+/// it leaves are written over by the next frame's, which saves a fresh allocation's page faults
+/// in every frame (docs/ARCHITECTURE.md, Frame loop).
 pub fn run_images(
     tracer: &mut Tracer<'_>,
     plan: &FramePlan<'_>,
     width: u32,
     height: u32,
     background: [f32; 3],
-    done: &mut dyn FnMut(u32, Frame, &FrameStats) -> Result<()>,
+    done: &mut dyn FnMut(u32, &mut Frame, &FrameStats) -> Result<()>,
 ) -> Result<()> {
     struct Images<'d> {
         size: (u32, u32, [f32; 3]),
         image: Option<Frame>,
-        done: &'d mut dyn FnMut(u32, Frame, &FrameStats) -> Result<()>,
+        /// The last frame's pixels, unless `done` took them.
+        spare: Vec<Pixel>,
+        done: &'d mut dyn FnMut(u32, &mut Frame, &FrameStats) -> Result<()>,
     }
     impl FrameBody for Images<'_> {
         fn trace(&mut self, mut ctx: FrameCtx<'_, '_>) -> Result<()> {
             let (w, h, bg) = self.size;
+            if !self.spare.is_empty() {
+                ctx.tracer.recycle_pixels(std::mem::take(&mut self.spare));
+            }
             self.image = Some(ctx.render_whole(w, h, bg)?);
             Ok(())
         }
         fn finish(&mut self, frame: u32, stats: &FrameStats, _: &mut FrameTrace) -> Result<()> {
             match self.image.take() {
-                Some(image) => (self.done)(frame, image, stats),
+                Some(mut image) => {
+                    (self.done)(frame, &mut image, stats)?;
+                    self.spare = image.pixels;
+                    Ok(())
+                }
                 None => Ok(()),
             }
         }
@@ -177,6 +189,7 @@ pub fn run_images(
     let mut images = Images {
         size: (width, height, background),
         image: None,
+        spare: Vec::new(),
         done,
     };
     run_frames(tracer, plan, &mut images)

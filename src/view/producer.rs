@@ -42,6 +42,10 @@ pub trait Frames {
         sums: bool,
     ) -> Result<Made>;
 
+    /// Takes a frame's pixels back once they were converted, for the next frame of the size to
+    /// write over (`Tracer::recycle_pixels`).
+    fn recycle(&mut self, _frame: Frame) {}
+
     /// How long the view may wait for a wish before calling `between`; `None`: as long as it
     /// likes.
     fn slice(&self) -> Option<Duration> {
@@ -156,7 +160,7 @@ impl Frames for OneProcess<'_, '_> {
             height,
             self.background,
             &mut |_, frame, stats| {
-                out = Some((frame, stats.clone()));
+                out = Some((std::mem::take(frame), stats.clone()));
                 Ok(())
             },
         )?;
@@ -164,6 +168,10 @@ impl Frames for OneProcess<'_, '_> {
             out.ok_or_else(|| Error::Internal("the frame loop gave no frame".into()))?;
         let pixels = u64::from(width) * u64::from(height);
         Ok(Made::Linear(frame, Figures::of(&stats, pixels)))
+    }
+
+    fn recycle(&mut self, frame: Frame) {
+        self.tracer.recycle_pixels(frame.pixels);
     }
 }
 
@@ -201,7 +209,11 @@ pub fn produce(frames: &mut dyn Frames, shared: &Arc<Shared>, still: &Still) -> 
                 ..still.shading
             };
             let (image, f) = match frames.render(&wish.camera, shading, size, false)? {
-                Made::Linear(frame, f) => (to_rgb8(&frame), f),
+                Made::Linear(frame, f) => {
+                    let image = to_rgb8(&frame);
+                    frames.recycle(frame);
+                    (image, f)
+                }
                 Made::Rgb8(image, f) => (image, f),
             };
             // The size whose frame takes 1/TARGET_FPS, from this frame's time per pixel.
@@ -244,9 +256,15 @@ pub fn produce(frames: &mut dyn Frames, shared: &Arc<Shared>, still: &Still) -> 
                     for (p, sum) in frame.pixels.iter_mut().zip(&sums) {
                         p.rgb = sum.map(|c| c * scale);
                     }
-                    to_rgb8(&frame)
+                    let image = to_rgb8(&frame);
+                    frames.recycle(frame);
+                    image
                 }
-                Made::Linear(frame, _) => to_rgb8(&frame),
+                Made::Linear(frame, _) => {
+                    let image = to_rgb8(&frame);
+                    frames.recycle(frame);
+                    image
+                }
                 Made::Rgb8(_, _) if spp > 1 => {
                     return Err(Error::Internal(
                         "a sample pass to be added came as RGB8".into(),

@@ -94,8 +94,9 @@ fn orbit_frames_render_like_the_tracer_and_trace_who_rendered_them() {
         }
     );
     let mut got = Vec::new();
+    // Cloned, not taken: the frame loop writes each frame over the last one's pixels.
     run_images(&mut t, &plan, W, H, BG, &mut |i, f, _| {
-        got.push((i, f));
+        got.push((i, f.clone()));
         Ok(())
     })
     .unwrap();

@@ -365,10 +365,10 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
                 report.push(stats.clone());
             }
             let png = numbered(&a.output);
-            output::write_png_legend(&png, &frame, a.exposure, legend.as_ref())?;
+            output::write_png_legend(&png, frame, a.exposure, legend.as_ref())?;
             let exr = a.exr.as_deref().map(numbered);
             if let Some(exr) = &exr {
-                output::write_exr(exr, &frame, &a.aov)?;
+                output::write_exr(exr, frame, &a.aov)?;
             }
             let files: Vec<&Path> = [Some(png.as_path()), exr.as_deref()]
                 .into_iter()

@@ -166,7 +166,7 @@ fn run(
         a.scene.height,
         scene.background,
         &mut |i, frame, _| {
-            std::hint::black_box(dcrt::output::to_rgb8(&frame));
+            std::hint::black_box(dcrt::output::to_rgb8(frame));
             bar.inc(1);
             if i == frames / 10 {
                 live_warm = gpu.live();
