@@ -4,12 +4,14 @@
 // scalars before mapping) through the mesh's colormap, or a direct colour. A rank that lacks the
 // attribute block faults it like any block (`locate`) and leaves the slot unresolved; the host
 // serves the round's faults and dispatches again, and resolved slots are skipped. Rays that only
-// traverse never read an attribute block. Slots: albedo_stride * i + albedo_stride - 1.
+// traverse never read an attribute block. Slots: wave_slot(i, albedo_stride - 1, albedo_stride), which
+// is mode_wave_slot in every mode with albedos (ambient occlusion reads none).
 #import params
 #import ray
 #import blocks
 #import dc
 #import scene
+#import tiles
 #import colormap
 
 // Fixed for a model: triangles per attribute block, words per triangle (1: per triangle, 3: per
@@ -27,7 +29,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i >= params.batch_rays {
         return;
     }
-    let j = i * params.albedo_stride + params.albedo_stride - 1u;
+    let j = wave_slot(i, params.albedo_stride - 1u, params.albedo_stride);
     if albedos[j].w != 0.0 {
         return;
     }

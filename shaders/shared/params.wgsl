@@ -48,7 +48,7 @@ struct Params {
     flags: u32,
     spp: u32,
     // Colour by data: the first attribute block; the albedo kernel reads ray slots
-    // albedo_stride * i + albedo_stride - 1 (1: primary rays; a wave's fan: its bounce rays).
+    // wave_slot(i, albedo_stride - 1, albedo_stride) (1: primary rays; a wave's fan: its bounce rays).
     attr_block0: u32,
     albedo_stride: u32,
     // Tiles across a band of the batch order (shared/tiles.wgsl); 0: one band.

@@ -24,6 +24,23 @@ fn tile_pixel(i: u32) -> vec2<u32> {
     return vec2((b * band + within % width) * TILE + z_x(local), ty * TILE + z_x(local >> 1u));
 }
 
+// The ray slot of ray k of batch slot i in a wave of `fan` rays a slot, by kind: tile by tile,
+// then k, then the slot's place in its tile (batches are whole tiles), so that a subgroup's lanes
+// trace the same ray k of neighbouring pixels (rays to the same light; a path's sun rays apart
+// from its bounce rays) rather than a mix of kinds. Ambient occlusion lays its waves out by pixel
+// instead (spawn.wgsl, mode_wave_slot).
+fn wave_slot(i: u32, k: u32, fan: u32) -> u32 {
+    let t = i / (TILE * TILE);
+    return (t * fan + k) * (TILE * TILE) + i % (TILE * TILE);
+}
+
+// The batch slot and k of wave ray slot j: wave_slot's inverse.
+fn wave_ray(j: u32, fan: u32) -> vec2<u32> {
+    let g = j / (TILE * TILE);
+    let t = g / fan;
+    return vec2(t * (TILE * TILE) + j % (TILE * TILE), g - t * fan);
+}
+
 // The x of Z-order index l in an 8x8 tile: its bits 0, 2 and 4 (of l >> 1, the y).
 fn z_x(l: u32) -> u32 {
     return (l & 1u) | ((l >> 1u) & 2u) | ((l >> 2u) & 4u);

@@ -52,8 +52,8 @@ pub struct Params {
     pub flags: u32,
     pub spp: u32,
     /// Colour by data: the first attribute block, and the ray slots the `albedo` kernel reads,
-    /// `albedo_stride * i + albedo_stride - 1` (1: every primary ray; a wave's fan: its bounce
-    /// rays).
+    /// `wave_slot(i, albedo_stride - 1, albedo_stride)` in `shaders/shared/tiles.wgsl` (1: every
+    /// primary ray; a wave's fan: its bounce rays).
     pub attr_block0: u32,
     pub albedo_stride: u32,
     /// Tiles across a band of the batch order (`mirror::tiles::Tiling::band`); 0: one band.

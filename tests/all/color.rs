@@ -145,6 +145,76 @@ fn images_are_the_same_through_every_cache() {
     }
 }
 
+/// A valley of n x n quads, z = |x - 0.5| over [0, 1]^2, every cell white by a cell colour array
+/// "rgb" (or a plain mesh with `plain`): light that bounces off one side hits the other.
+fn valley_vtk(n: usize, plain: bool) -> String {
+    let mut s = format!(
+        "# vtk DataFile Version 3.0\nvalley\nASCII\nDATASET POLYDATA\nPOINTS {} float\n",
+        (n + 1) * (n + 1)
+    );
+    for j in 0..=n {
+        for i in 0..=n {
+            let x = i as f32 / n as f32;
+            s += &format!("{x} {} {}\n", j as f32 / n as f32, (x - 0.5).abs());
+        }
+    }
+    s += &format!("POLYGONS {} {}\n", n * n, 5 * n * n);
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i;
+            s += &format!("4 {} {} {} {}\n", a, a + 1, a + n + 2, a + n + 1);
+        }
+    }
+    if !plain {
+        s += &format!("CELL_DATA {}\nCOLOR_SCALARS rgb 3\n", n * n);
+        s += &"1 1 1\n".repeat(n * n);
+    }
+    s
+}
+
+/// Path tracing with a sun (two rays a pixel in each wave: the sun's and the bounce) in a valley
+/// whose bounce rays hit its other side: the albedo kernel must resolve each bounce ray's hit in
+/// that ray's wave slot (`wave_slot`), where the gather reads it, so cells white by data render
+/// to the bit as a plain white mesh.
+#[test]
+fn bounce_albedos_by_data_equal_a_plain_colour() {
+    let gpu = gpu();
+    let d = TempDir::new("color-valley");
+    let mut frames = Vec::new();
+    for plain in [false, true] {
+        d.write("valley.vtk", valley_vtk(16, plain));
+        let look = if plain {
+            "color = [1, 1, 1]"
+        } else {
+            "color_by = \"rgb\"\ncell = true"
+        };
+        let text = format!(
+            "[camera]\nposition = [0.5, -0.9, 1.4]\nfocal_point = [0.5, 0.5, 0.1]\n\
+             view_up = [0, 0, 1]\nview_angle = 50\n[image]\nwidth = {W}\nheight = {H}\n\
+             [[mesh]]\nfile = \"valley.vtk\"\n{look}\n"
+        );
+        let scene = Scene::load(&d.write("valley.toml", text)).unwrap();
+        let model = scene.load_model().unwrap();
+        let camera = scene.camera.unwrap();
+        let p = prepare(model);
+        assert_eq!(
+            p.blocks.attrs.blocks > 0,
+            !plain,
+            "attribute blocks, plain {plain}"
+        );
+        let settings = Settings {
+            shading: Shading {
+                sun_dir: Some([0.3, 0.2, -1.0]),
+                ..shading(Mode::Path)
+            },
+            ..Settings::default()
+        };
+        let mut t = p.tracer(&gpu, settings).unwrap();
+        frames.push(t.render(&camera.basis(W, H), [0.1, 0.2, 0.3]).unwrap().0);
+    }
+    same_pixels(&frames[1], &frames[0], "white by data against plain white");
+}
+
 /// Each triangle its own mesh of the colour the CPU twins give its attributes: the albedo kernel
 /// must give every cell-coloured pixel exactly that colour.
 #[test]

@@ -157,6 +157,47 @@ fn ao_of_a_lone_convex_object_is_one() {
     }
 }
 
+/// A path from a lone convex object under a sky and a sun: every bounce ray leaves to the sky and
+/// every sun ray towards the lit side is unoccluded, so a pixel is its albedo times the sky plus
+/// the sun's Lambert term, whatever the sampler drew. It reads each pixel's sun ray and bounce ray
+/// from the wave's ray slots (`wave_slot`): a pixel given another slot's rays is wrong.
+#[test]
+fn path_of_a_lone_convex_object_is_its_albedo_under_sky_and_sun() {
+    let p = prepare(sphere(24, 48, 0.0));
+    let travel = [-1.0f32, 0.2, -0.1];
+    let len = travel.iter().map(|c| c * c).sum::<f32>().sqrt();
+    let to_sun = travel.map(|c| -c / len);
+    let sh = Shading {
+        mode: Mode::Path,
+        sun_dir: Some(travel),
+        ..Shading::default()
+    };
+    let f = shaded(&p, &camera(), 32, 32, sh);
+    let albedo = p.model.colors[0];
+    let (mut lit, mut shaded_side) = (0, 0);
+    for px in f.pixels.iter().filter(|p| !is_miss(p)) {
+        let cos = (0..3).map(|a| px.normal[a] * to_sun[a]).sum::<f32>();
+        let want: [f32; 3] = std::array::from_fn(|a| {
+            albedo[a] * sh.sky[a] + albedo[a] / std::f32::consts::PI * sh.sun[a] * cos.max(0.0)
+        });
+        for a in 0..3 {
+            assert!(
+                (px.rgb[a] - want[a]).abs() <= 1e-3 * want[a].max(1e-3),
+                "prim {}: {:?} against {want:?} (cos to the sun {cos})",
+                px.id,
+                px.rgb
+            );
+        }
+        // Pixels near the terminator may go either way by rounding: count the clear ones.
+        lit += usize::from(cos > 0.05);
+        shaded_side += usize::from(cos < -0.05);
+    }
+    assert!(
+        lit > 50 && shaded_side > 50,
+        "{lit} lit, {shaded_side} unlit pixels"
+    );
+}
+
 /// GPU against the CPU reference for one mode on a small rm isosurface.
 fn against_reference(sh: Shading) {
     let (w, h) = (48, 40);
