@@ -440,6 +440,10 @@ fn dc_bench_reports_ratios_over_its_repeats() {
             f(r, "nodes_per_block_entry") >= 1.0,
             "counted in the extra frame: {r}"
         );
+        // Every traced ray takes a step; the share of busy lanes is a share.
+        assert!(f(r, "steps_per_ray") >= 1.0, "{r}");
+        let lanes = f(r, "lane_use");
+        assert!(lanes > 0.0 && lanes <= 1.0, "{r}");
     }
     assert_eq!(f(&rows[0], "frame_over_replicated_min"), 1.0);
     assert_eq!(f(&rows[0], "frame_over_replicated_max"), 1.0);

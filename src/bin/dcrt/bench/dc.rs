@@ -107,6 +107,11 @@ struct DcRow {
     misses_per_fault_round: f64,
     hit_rate: f64,
     nodes_per_block_entry: f64,
+    /// Traversal loop iterations a ray (warm frames), and of the lanes' iterations the share that
+    /// did work (block-counted frame): a suspended ray's resumptions and a fault round's sparse
+    /// subgroups show here against the replicated row.
+    steps_per_ray: f64,
+    lane_use: f64,
     resident_mib: f64,
     cache_mib: f64,
     /// The batch buffers of the tracer's lanes after the last frame (`Tracer::batch_bytes`): the
@@ -298,6 +303,8 @@ fn run(
                 }
             },
             nodes_per_block_entry: counted.node_visits as f64 / counted.block_entries.max(1) as f64,
+            steps_per_ray: sum(&|s| s.steps as f64) / sum(&|s| s.rays as f64).max(1.0),
+            lane_use: counted.steps as f64 / counted.lane_steps.max(1) as f64,
             resident_mib: mib(resident),
             cache_mib: mib(cache),
             lanes_mib: mib(lanes[i]),
@@ -405,6 +412,8 @@ fn print(report: &DcReport) {
         ("miss/rnd", 9),
         ("hit", 6),
         ("nod/blk", 7),
+        ("steps/r", 7),
+        ("lanes", 5),
         ("res MiB", 8),
         ("$ MiB", 7),
         ("lanes MiB", 9),
@@ -445,6 +454,8 @@ fn print(report: &DcReport) {
             format!("{:.0}", r.misses_per_fault_round),
             format!("{:.3}", r.hit_rate),
             format!("{:.2}", r.nodes_per_block_entry),
+            format!("{:.1}", r.steps_per_ray),
+            format!("{:.2}", r.lane_use),
             format!("{:.1}", r.resident_mib),
             format!("{:.1}", r.cache_mib),
             format!("{:.1}", r.lanes_mib),
