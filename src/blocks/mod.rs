@@ -19,7 +19,7 @@ pub mod check;
 pub mod file;
 pub mod ranks;
 
-use crate::bvh::{Bvh, Node};
+use crate::bvh::{Bvh, Child, Node};
 use crate::error::{Error, Result};
 
 pub const DEFAULT_BLOCK_BYTES: u32 = 8192;
@@ -85,6 +85,35 @@ impl Format {
     pub fn put_node(&self, block: &mut [u32], s: usize, node: &Node) {
         let w = NODE_WORDS as usize;
         block[s * w..(s + 1) * w].copy_from_slice(bytemuck::cast_slice(std::slice::from_ref(node)));
+    }
+
+    /// The blocks node block `k` (its words `block`) leads to, each once, in slot order: the node
+    /// blocks of its inner children other than `k`, and the triangle blocks of its leaves. The
+    /// cache fetches them ahead of the rays (`dc::policy`).
+    pub fn child_blocks(&self, k: u32, block: &[u32], node_blocks: u32) -> Vec<u32> {
+        let (npb, tpb) = (self.nodes_per_block(), self.tris_per_block());
+        let w = NODE_WORDS as usize;
+        let mut out = Vec::new();
+        let mut add = |b: u32| {
+            if b != k && !out.contains(&b) {
+                out.push(b);
+            }
+        };
+        for words in block.chunks_exact(w) {
+            let node: Node = bytemuck::pod_read_unaligned(bytemuck::cast_slice(words));
+            for i in 0..crate::bvh::WIDTH {
+                match node.child(i) {
+                    Child::Empty => {}
+                    Child::Inner(j) => add(j / npb),
+                    Child::Leaf { first, count } => {
+                        for b in first / tpb..=(first + count - 1) / tpb {
+                            add(node_blocks + b);
+                        }
+                    }
+                }
+            }
+        }
+        out
     }
 
     /// Puts triangle `tri`, of primitive id `id`, in slot `s` of triangle block `block`.
@@ -274,5 +303,41 @@ mod tests {
             assert_eq!(tri, bvh.triangles[t]);
             assert_eq!(id, bvh.prim_ids[t]);
         }
+    }
+
+    /// From the root block, the node blocks' children reach every node and triangle block, and
+    /// name only blocks the tree uses: what a node of a block points to, in another block.
+    #[test]
+    fn child_blocks_reach_every_block_from_the_root() {
+        let tris: Vec<_> = (0..3000)
+            .map(|i| {
+                let (x, y) = ((i % 60) as f32, (i / 60) as f32);
+                [[x, y, 0.0], [x + 1.0, y, 0.5], [x, y + 1.0, 1.0]]
+            })
+            .collect();
+        let model = Model::from_triangles(tris);
+        let format = Format::new(1024).unwrap();
+        let bvh = Bvh::build(&model, Preset::Fast, format.nodes_per_block() as usize);
+        let blocks = Blocks::pack(&bvh, format).unwrap();
+        let nb = blocks.node_blocks;
+        let mut reached = vec![false; blocks.count() as usize];
+        let mut todo = vec![0u32];
+        reached[0] = true;
+        while let Some(k) = todo.pop() {
+            let children = format.child_blocks(k, blocks.block(k), nb);
+            assert!(!children.contains(&k), "block {k} names itself");
+            for c in children {
+                assert!(c < blocks.count(), "block {k}: child {c}");
+                if !std::mem::replace(&mut reached[c as usize], true) && c < nb {
+                    todo.push(c);
+                }
+            }
+        }
+        assert!(nb > 2, "a tree of several node blocks: {nb}");
+        let missed: Vec<usize> = (0..reached.len()).filter(|&k| !reached[k]).collect();
+        assert!(
+            missed.is_empty(),
+            "blocks no node block leads to: {missed:?}"
+        );
     }
 }

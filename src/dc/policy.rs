@@ -33,6 +33,18 @@ pub struct CachePolicy {
     /// last. Blocks `0..node_blocks` are node blocks.
     kept: Vec<bool>,
     node_blocks: u32,
+    /// Per node block, the blocks it leads to (`Format::child_blocks`), learnt when its bytes
+    /// pass through the host (`learn_children`); empty while unknown. `Lru` loads them into
+    /// lines no round needs, beside the faulted block, so that its rays go on into them.
+    children: Vec<Box<[u32]>>,
+    fetch_ahead: bool,
+}
+
+impl RoundPlan {
+    /// The faults that got a line this round (the loads before those fetched ahead).
+    pub fn served(&self) -> usize {
+        self.loads.len() - self.ahead as usize
+    }
 }
 
 /// A block to fetch into a cache line.
@@ -49,8 +61,10 @@ pub struct Load {
 pub struct RoundPlan {
     /// One record per fault, in the order of the GPU's list (for the trace).
     pub faults: Vec<Fault>,
-    /// The blocks to fetch and where they go.
+    /// The blocks to fetch and where they go: the faults served, then the blocks fetched ahead.
     pub loads: Vec<Load>,
+    /// Of `loads`, the last this many are fetched ahead (children of faulted blocks).
+    pub ahead: u32,
     /// Entries of the block-row table to rewrite, in order: `(block, row)`, `row` `NONE` for an
     /// evicted block.
     pub rows: Vec<(u32, u32)>,
@@ -80,6 +94,28 @@ impl CachePolicy {
             stamps: vec![0; lines as usize],
             kept: vec![false; lines as usize],
             node_blocks,
+            children: vec![Box::default(); node_blocks as usize],
+            fetch_ahead: false,
+        }
+    }
+
+    /// With `on` (and `Lru`), each round also fetches the children of the node blocks its
+    /// faults load, into lines that neither the last round used nor a live ray keeps
+    /// (`Settings::fetch_ahead`).
+    pub fn with_fetch_ahead(mut self, on: bool) -> CachePolicy {
+        self.fetch_ahead = on && self.map == CacheMap::Lru;
+        self
+    }
+
+    /// Whether node block `k`'s children are still to learn.
+    pub fn wants_children(&self, k: u32) -> bool {
+        self.fetch_ahead && k < self.node_blocks && self.children[k as usize].is_empty()
+    }
+
+    /// Records the blocks node block `k` leads to (`Format::child_blocks` of its bytes).
+    pub fn learn_children(&mut self, k: u32, children: Vec<u32>) {
+        if k < self.node_blocks {
+            self.children[k as usize] = children.into_boxed_slice();
         }
     }
 
@@ -148,6 +184,7 @@ impl CachePolicy {
         // blocks, docs/ARCHITECTURE.md, The distributed cache). Only when every line is kept
         // does the least recent one go, so that every round with faults loads a block.
         let mut free = Vec::new();
+        let mut spare: Vec<u32> = Vec::new();
         if self.map == CacheMap::Lru {
             let mut order: Vec<u32> = (0..self.lines).collect();
             order.sort_by_key(|&l| (self.stamps[l as usize], l));
@@ -159,6 +196,15 @@ impl CachePolicy {
             if free.is_empty() {
                 free.extend(order.first());
             }
+            // Lines neither kept nor used by the last round, past those the faults take: room
+            // to fetch ahead.
+            spare = free
+                .iter()
+                .skip(faults.len())
+                .copied()
+                .filter(|&l| self.stamps[l as usize] < self.round)
+                .collect();
+            spare.reverse();
             free.truncate(faults.len());
             free.reverse();
         }
@@ -194,6 +240,9 @@ impl CachePolicy {
                 });
             }
         }
+        if self.fetch_ahead && !spare.is_empty() {
+            self.fetch_ahead(&mut plan, &mut spare);
+        }
         for l in &plan.loads {
             self.stamps[l.line as usize] = self.round;
             let old = std::mem::replace(&mut self.tags[l.line as usize], l.block);
@@ -205,6 +254,43 @@ impl CachePolicy {
             }
         }
         plan
+    }
+}
+
+impl CachePolicy {
+    /// Adds loads of the served node blocks' children that are absent, into `spare` lines (taken
+    /// from the back), a child of each served block in turn, until the lines or the children run
+    /// out. One level: fetching the children's children too, or into every line not kept,
+    /// fetched more blocks for more fault rounds (docs/ARCHITECTURE.md, The distributed cache).
+    fn fetch_ahead(&self, plan: &mut RoundPlan, spare: &mut Vec<u32>) {
+        let lists: Vec<&[u32]> = plan
+            .loads
+            .iter()
+            .filter(|l| l.block < self.node_blocks)
+            .map(|l| &*self.children[l.block as usize])
+            .collect();
+        let mut planned: std::collections::HashSet<u32> =
+            plan.loads.iter().map(|l| l.block).collect();
+        let mut ahead = Vec::new();
+        let most = lists.iter().map(|c| c.len()).max().unwrap_or(0);
+        'fill: for i in 0..most {
+            for c in &lists {
+                let Some(&k) = c.get(i) else { continue };
+                if self.block_rows[k as usize] != NONE || !planned.insert(k) {
+                    continue;
+                }
+                let Some(line) = spare.pop() else {
+                    break 'fill;
+                };
+                ahead.push(Load {
+                    block: k,
+                    line,
+                    row: self.cache_row + line,
+                });
+            }
+        }
+        plan.ahead = ahead.len() as u32;
+        plan.loads.extend(ahead);
     }
 }
 
@@ -431,5 +517,49 @@ mod tests {
         // Resident blocks are never touched.
         assert_eq!(p.block_rows()[0], 0);
         assert_eq!(p.block_rows()[4], 2);
+    }
+
+    #[test]
+    fn fetch_ahead_loads_a_served_node_blocks_absent_children_into_lines_no_round_needs() {
+        // Rank 0 of 2, 6 lines, 20 blocks of which 0..4 are node blocks: rank 0 owns the even
+        // ones, block 0 is the root. Node block 1 leads to 3, 5, 6 (owned), 7 and 9.
+        let ranks = Ranks::new(2, 0).unwrap();
+        let new = |lines| {
+            let mut p = CachePolicy::new(ranks, CacheMap::Lru, lines, 20, 4).with_fetch_ahead(true);
+            assert!(p.wants_children(1));
+            p.learn_children(1, vec![3, 5, 6, 7, 9]);
+            assert!(!p.wants_children(1));
+            p
+        };
+        let mut p = new(6);
+        let plan = p.plan_round(&[1], &[0; 6]);
+        let loads: Vec<(u32, u32)> = plan.loads.iter().map(|l| (l.block, l.line)).collect();
+        assert_eq!(loads, vec![(1, 0), (3, 1), (5, 2), (7, 3), (9, 4)]);
+        assert_eq!(plan.ahead, 4);
+        assert_eq!(plan.faults.len(), 1, "fetched ahead, not faulted");
+        for k in [1, 3, 5, 7, 9] {
+            assert_ne!(p.block_rows()[k as usize], NONE, "block {k}");
+        }
+        // A line the last round used (4) and one a live ray keeps (5) take nothing fetched
+        // ahead, nor does the line the fault takes: 9 finds no line.
+        let mut p = new(6);
+        p.mark_used(&[0, 0, 0, 0, 1, 0], &[0, 0, 0, 0, 0, 1]);
+        let plan = p.plan_round(&[1], &[0; 6]);
+        let loads: Vec<(u32, u32)> = plan.loads.iter().map(|l| (l.block, l.line)).collect();
+        assert_eq!(loads, vec![(1, 0), (3, 1), (5, 2), (7, 3)]);
+        assert_eq!(p.block_rows()[9], NONE);
+        // The lines run out before the children: only the served node block's children go.
+        let mut p = new(2);
+        let plan = p.plan_round(&[1], &[0; 2]);
+        assert_eq!(plan.loads.len(), 2);
+        assert_eq!((plan.loads[1].block, plan.ahead), (3, 1));
+        // Off, or with a direct mapping, only the fault is loaded.
+        for map in [CacheMap::Lru, CacheMap::Ize, CacheMap::Demarle] {
+            let mut p =
+                CachePolicy::new(ranks, map, 6, 20, 4).with_fetch_ahead(map != CacheMap::Lru);
+            p.learn_children(1, vec![3, 5, 7, 9]);
+            let plan = p.plan_round(&[1], &[0; 6]);
+            assert_eq!((plan.loads.len(), plan.ahead), (1, 0), "{map:?}");
+        }
     }
 }

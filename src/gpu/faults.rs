@@ -68,7 +68,8 @@ impl Dc {
                 d.ranks.rank, d.ranks.n
             )));
         }
-        let policy = CachePolicy::new(d.ranks, d.map, d.lines, blocks, node_blocks);
+        let policy = CachePolicy::new(d.ranks, d.map, d.lines, blocks, node_blocks)
+            .with_fetch_ahead(settings.fetch_ahead);
         params.dc_ranks = d.ranks.n;
         params.dc_rank = d.ranks.rank;
         params.dc_lines = d.lines;
@@ -209,6 +210,7 @@ impl Tracer<'_> {
         let kept: Vec<u32> = bytemuck::pod_collect_to_vec(&waiters[8 * lines..12 * lines]);
         dc.policy.mark_used(&used, &kept);
         let plan = dc.policy.plan_round(list, &waiting);
+        let demand = plan.served();
         let mut rec = Round {
             batch: stats.batches,
             round,
@@ -232,6 +234,14 @@ impl Tracer<'_> {
         let t = Instant::now();
         dc.source.fetch(&blocks, &mut data)?;
         let fetch = t.elapsed().as_secs_f64();
+        for (i, l) in loads.iter().enumerate() {
+            if dc.policy.wants_children(l.block) {
+                let words = &data[i * bw..(i + 1) * bw];
+                let node_blocks = self.params.node_blocks;
+                let children = self.format.child_blocks(l.block, words, node_blocks);
+                dc.policy.learn_children(l.block, children);
+            }
+        }
         let t = Instant::now();
         let mut i = 0;
         while i < loads.len() {
@@ -251,6 +261,7 @@ impl Tracer<'_> {
         let upload = t.elapsed().as_secs_f64();
         let loaded = plan.loads.len() as u32;
         rec.fetched_blocks = loaded;
+        rec.ahead = plan.loads[demand..].iter().map(|l| l.block).collect();
         rec.fetched_bytes = (plan.loads.len() * bw * 4) as u64;
         rec.fetch_us = fetch * 1e6;
         rec.upload_us = upload * 1e6;
@@ -260,7 +271,7 @@ impl Tracer<'_> {
         stats.upload_seconds += upload;
         stats.fault_rounds += 1;
         dc.trace.rounds.push(rec);
-        Ok(header.count - loaded)
+        Ok(header.count - demand as u32)
     }
 }
 

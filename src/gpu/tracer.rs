@@ -69,6 +69,10 @@ pub struct Settings {
     /// With a cache: when the next batch starts in another set of batch buffers while the last
     /// rays of the current one still wait for blocks, so that their fault rounds are shared.
     pub overlap_batches: OverlapMode,
+    /// With an `lru` cache: each round also fetches the children of the node blocks its faults
+    /// load, into lines nothing needs, so that their rays go on into them without a round of
+    /// their own (`dc::policy`).
+    pub fetch_ahead: bool,
     /// Shading mode, samples, lights: the pipelines are built for this mode.
     pub shading: Shading,
     /// With a cache: the distinct faults a round records, 1..=`FAULT_CAP` (the rest fault again
@@ -109,6 +113,7 @@ impl Default for Settings {
             max_texture_bytes: None,
             faults: FaultMode::Fit,
             overlap_batches: OverlapMode::Auto,
+            fetch_ahead: true,
             shading: Shading::default(),
             fault_cap: FAULT_CAP,
             block_counts: false,

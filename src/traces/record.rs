@@ -96,6 +96,10 @@ pub struct Round {
     /// Faults that did not fit in the GPU's fault list (they fault again).
     pub dropped: u32,
     pub fetched_blocks: u32,
+    /// Of those, the blocks fetched ahead of the rays: children of the node blocks the round's
+    /// faults loaded, into lines nothing needed (empty in traces of older builds).
+    #[serde(default)]
+    pub ahead: Vec<u32>,
     pub fetched_bytes: u64,
     pub fetch_us: f64,
     pub upload_us: f64,

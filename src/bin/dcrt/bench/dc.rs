@@ -151,6 +151,7 @@ struct DcReport {
     faults: dcrt::gpu::tracer::FaultMode,
     /// `--overlap-batches`: when a batch's last rounds shared rounds with the next batch.
     overlap_batches: dcrt::gpu::tracer::OverlapMode,
+    fetch_ahead: bool,
     model_mib: f64,
     rows: Vec<DcRow>,
     memory: Vec<MemoryRow>,
@@ -364,6 +365,7 @@ fn run(
         repeats: a.repeats,
         faults: a.switches.faults,
         overlap_batches: a.switches.overlap_batches,
+        fetch_ahead: !a.switches.no_fetch_ahead,
         model_mib: mib(blocks.bytes()),
         rows,
         memory,
@@ -381,7 +383,7 @@ fn print(report: &DcReport) {
     println!(
         "scene     {} ({} triangles, {:.1} MiB of blocks), {}x{}, rank {} of {} virtual ranks, \
          {} orbit frames {}° apart (the first, cold, reported apart), {} repeat(s), --faults {:?}, \
-         --overlap-batches {:?}",
+         --overlap-batches {:?}, fetch ahead {}",
         report.scene,
         report.triangles,
         report.model_mib,
@@ -393,7 +395,8 @@ fn print(report: &DcReport) {
         report.step,
         report.repeats,
         report.faults,
-        report.overlap_batches
+        report.overlap_batches,
+        if report.fetch_ahead { "on" } else { "off" }
     );
     let t = Table(&[
         ("config", -10),

@@ -7,8 +7,8 @@ use clap::Args;
 use dcrt::gpu::tracer::{FaultMode, OverlapMode, Settings};
 use dcrt::shading::Overrides;
 
-/// Tracer switches: when rays set faults aside, when batches overlap, and counting block
-/// entries in every frame.
+/// Tracer switches: when rays set faults aside, when batches overlap, fetching ahead, and
+/// counting block entries in every frame.
 #[derive(Args, Clone, Debug)]
 pub struct TracerSwitches {
     /// With a distributed cache: when a ray sets absent blocks aside and goes on with the
@@ -19,6 +19,10 @@ pub struct TracerSwitches {
     /// current one still wait for blocks, so that the two share fault rounds.
     #[arg(long, value_enum, default_value_t = Settings::default().overlap_batches)]
     pub overlap_batches: OverlapMode,
+    /// With an `lru` cache: fetch only the blocks rays fault on, not also the children of the
+    /// node blocks among them.
+    #[arg(long)]
+    pub no_fetch_ahead: bool,
     /// Count node visits and node- and triangle-block entries in every frame (`--stats`
     /// `node_visits`, `block_entries`, `tri_block_entries`; 0 without). The counts slow the trace.
     #[arg(long)]
@@ -31,6 +35,7 @@ impl Default for TracerSwitches {
         TracerSwitches {
             faults: s.faults,
             overlap_batches: s.overlap_batches,
+            no_fetch_ahead: !s.fetch_ahead,
             block_counts: s.block_counts,
         }
     }
@@ -42,6 +47,7 @@ impl TracerSwitches {
         Settings {
             faults: self.faults,
             overlap_batches: self.overlap_batches,
+            fetch_ahead: !self.no_fetch_ahead,
             block_counts: self.block_counts,
             ..base
         }
@@ -109,6 +115,7 @@ mod tests {
         let applied = parsed.tracer.apply(Settings {
             faults: FaultMode::Always,
             overlap_batches: OverlapMode::Never,
+            fetch_ahead: !s.fetch_ahead,
             block_counts: true,
             ..s
         });
@@ -116,9 +123,10 @@ mod tests {
             (
                 applied.faults,
                 applied.overlap_batches,
+                applied.fetch_ahead,
                 applied.block_counts
             ),
-            (s.faults, s.overlap_batches, s.block_counts)
+            (s.faults, s.overlap_batches, s.fetch_ahead, s.block_counts)
         );
         assert_eq!(
             parsed.shade.apply(Overrides::default()),
