@@ -34,8 +34,9 @@ pub struct CachePolicy {
     kept: Vec<bool>,
     node_blocks: u32,
     /// Per node block, the blocks it leads to (`Format::child_blocks`), learnt when its bytes
-    /// pass through the host (`learn_children`); empty while unknown. `Lru` loads them into
-    /// lines no round needs, beside the faulted block, so that its rays go on into them.
+    /// pass through the host (`learn_children`); empty while unknown, and no list at all
+    /// without `fetch_ahead`. `Lru` loads them into lines no round needs, beside the faulted
+    /// block, so that its rays go on into them.
     children: Vec<Box<[u32]>>,
     fetch_ahead: bool,
 }
@@ -94,7 +95,7 @@ impl CachePolicy {
             stamps: vec![0; lines as usize],
             kept: vec![false; lines as usize],
             node_blocks,
-            children: vec![Box::default(); node_blocks as usize],
+            children: Vec::new(),
             fetch_ahead: false,
         }
     }
@@ -104,6 +105,9 @@ impl CachePolicy {
     /// (`Settings::fetch_ahead`).
     pub fn with_fetch_ahead(mut self, on: bool) -> CachePolicy {
         self.fetch_ahead = on && self.map == CacheMap::Lru;
+        if self.fetch_ahead {
+            self.children = vec![Box::default(); self.node_blocks as usize];
+        }
         self
     }
 
@@ -114,7 +118,7 @@ impl CachePolicy {
 
     /// Records the blocks node block `k` leads to (`Format::child_blocks` of its bytes).
     pub fn learn_children(&mut self, k: u32, children: Vec<u32>) {
-        if k < self.node_blocks {
+        if self.fetch_ahead && k < self.node_blocks {
             self.children[k as usize] = children.into_boxed_slice();
         }
     }
