@@ -10,6 +10,7 @@
 use super::NONE;
 use super::{CacheMap, cache_line};
 use crate::blocks::ranks::Ranks;
+use crate::error::{Error, Result};
 use crate::traces::record::Fault;
 
 /// A rank's cache: what each line holds and the row of every block on its GPU.
@@ -116,11 +117,20 @@ impl CachePolicy {
         self.fetch_ahead && k < self.node_blocks && self.children[k as usize].is_empty()
     }
 
-    /// Records the blocks node block `k` leads to (`Format::child_blocks` of its bytes).
-    pub fn learn_children(&mut self, k: u32, children: Vec<u32>) {
+    /// Records the blocks node block `k` leads to (`Format::child_blocks` of its bytes). A child
+    /// past the model's blocks is an error naming both: the block's bytes are not this model's.
+    pub fn learn_children(&mut self, k: u32, children: Vec<u32>) -> Result<()> {
+        let count = self.block_rows.len();
+        if let Some(c) = children.iter().find(|&&c| c as usize >= count) {
+            return Err(Error::Invalid(format!(
+                "node block {k} (rank {}'s) leads to block {c}, past the model's {count} blocks",
+                self.ranks.owner(k)
+            )));
+        }
         if self.fetch_ahead && k < self.node_blocks {
             self.children[k as usize] = children.into_boxed_slice();
         }
+        Ok(())
     }
 
     pub fn ranks(&self) -> Ranks {
@@ -531,7 +541,7 @@ mod tests {
         let new = |lines| {
             let mut p = CachePolicy::new(ranks, CacheMap::Lru, lines, 20, 4).with_fetch_ahead(true);
             assert!(p.wants_children(1));
-            p.learn_children(1, vec![3, 5, 6, 7, 9]);
+            p.learn_children(1, vec![3, 5, 6, 7, 9]).unwrap();
             assert!(!p.wants_children(1));
             p
         };
@@ -561,9 +571,15 @@ mod tests {
         for map in [CacheMap::Lru, CacheMap::Ize, CacheMap::Demarle] {
             let mut p =
                 CachePolicy::new(ranks, map, 6, 20, 4).with_fetch_ahead(map != CacheMap::Lru);
-            p.learn_children(1, vec![3, 5, 7, 9]);
+            p.learn_children(1, vec![3, 5, 7, 9]).unwrap();
             let plan = p.plan_round(&[1], &[0; 6]);
             assert_eq!((plan.loads.len(), plan.ahead), (1, 0), "{map:?}");
         }
+        // A block that names a block past the model is refused, naming both, and nothing is
+        // learnt from it.
+        let mut p = new(6);
+        let e = p.learn_children(3, vec![5, 20]).unwrap_err().to_string();
+        assert!(e.contains("node block 3") && e.contains("block 20"), "{e}");
+        assert!(p.wants_children(3));
     }
 }

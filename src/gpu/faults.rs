@@ -239,7 +239,7 @@ impl Tracer<'_> {
                 let words = &data[i * bw..(i + 1) * bw];
                 let node_blocks = self.params.node_blocks;
                 let children = self.format.child_blocks(l.block, words, node_blocks);
-                dc.policy.learn_children(l.block, children);
+                dc.policy.learn_children(l.block, children)?;
             }
         }
         let t = Instant::now();
