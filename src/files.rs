@@ -153,8 +153,16 @@ fn kept_summary(w: &Written) -> Option<String> {
 /// for, so none is left half done. A process that has written nothing waits `idle_grace` first:
 /// an MPI launcher kills every rank as soon as one has exited, and the rank that writes the
 /// frames needs the time to finish (docs/ARCHITECTURE.md, Outputs).
+///
+/// The message must find room on stderr: mpirun stops reading its ranks' pipes while it stops
+/// a job (it sends SIGCONT, sleeps a second, sends SIGTERM, sleeps, sends SIGKILL), so a rank
+/// that writes a line a frame fills the 64 KiB a pipe holds by default, blocks in that write
+/// and, its message never written, is killed. A stderr pipe is therefore enlarged to 1 MiB (the
+/// most an unprivileged process may ask for), which holds a second of lines at over 5,000
+/// frames a second.
 pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    enlarge_stderr_pipe();
     let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
         .map_err(|e| DcrtError::Internal(format!("cannot install the signal handlers: {e}")))?;
     std::thread::Builder::new()
@@ -198,6 +206,17 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
         })
         .map_err(|e| DcrtError::Internal(format!("cannot start the signal thread: {e}")))?;
     Ok(())
+}
+
+/// Asks for a 1 MiB stderr pipe (see `remove_on_interrupt`). Not a pipe, or a system that
+/// allows less: stderr stays as it is, which only matters if a launcher stops reading it.
+fn enlarge_stderr_pipe() {
+    use std::os::fd::AsFd;
+    let stderr = std::io::stderr();
+    match rustix::pipe::fcntl_setpipe_size(stderr.as_fd(), 1 << 20) {
+        Ok(size) => log::debug!("stderr pipe holds {size} bytes"),
+        Err(e) => log::debug!("stderr left as it is ({e})"),
+    }
 }
 
 /// A directory of temporary files beside an output (the out-of-core prepare's spilled

@@ -857,13 +857,17 @@ fn a_rank_stopped_from_outside_ends_the_job_within_its_timeout() {
 /// SIGTERM to mpirun part-way through a job: every rank ends (no process of the job is left),
 /// the job exits non-zero, and the display keeps the frames it finished, each whole, says so,
 /// and leaves no temporary file (the other ranks wait a moment before exiting so that mpirun,
-/// which kills the whole job once one rank has exited, leaves the display the time).
+/// which kills the whole job once one rank has exited, leaves the display the time). The frames
+/// are tiny so that the display writes a line a millisecond: mpirun reads no rank's stderr
+/// while it stops the job, and in the second before a rank's SIGTERM those lines overflow a
+/// pipe of the default 64 KiB, which left the display blocked on stderr, its message unsaid,
+/// until mpirun's SIGKILL (`files::remove_on_interrupt`).
 #[test]
 fn sigterm_to_mpirun_ends_every_rank_and_keeps_the_finished_frames() {
     let dir = TempDir::new("cluster-sigterm");
     let scene = dir.write(
         "rm.toml",
-        "[image]\nwidth = 32\nheight = 24\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 2000\n",
+        "[image]\nwidth = 8\nheight = 6\n\n[[mesh]]\ngenerator = \"rm\"\ntriangles = 2000\n",
     );
     let mut cmd = Command::new("mpirun");
     cmd.args(["--oversubscribe", "-n", "3", dcrt_bin(), "render"])
@@ -893,7 +897,7 @@ fn sigterm_to_mpirun_ends_every_rank_and_keeps_the_finished_frames() {
     assert!(err.contains(&said), "no {said:?} in:\n{err}");
     for f in frames {
         let png = image::open(dir.path(&format!("f_{f:04}.png"))).unwrap();
-        assert_eq!((png.width(), png.height()), (32, 24), "frame {f}");
+        assert_eq!((png.width(), png.height()), (8, 6), "frame {f}");
     }
     // No rank outlives mpirun: none of them has this test's directory on its command line.
     let mark = dir.0.to_string_lossy().into_owned();
