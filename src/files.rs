@@ -148,8 +148,9 @@ fn kept_summary(w: &Written) -> Option<String> {
 /// Installs the answer to SIGTERM, SIGINT and SIGHUP for a command that writes outputs: a thread
 /// that, on the first of them, removes the run's temporary files (`Scratch` directories too) and
 /// the outputs of frames it had not finished, keeps the finished frames (`keep_frame`) and trace
-/// records, says so on stderr and exits with 128 + the signal's number, whatever the rest of
-/// the process is doing (a GPU wait, an MPI call). A file being renamed into place is waited
+/// records, says so on stderr (waiting at most `MESSAGE_WAIT` for a stderr nobody reads) and
+/// exits with 128 + the signal's number, whatever the rest of the process is doing (a GPU wait,
+/// an MPI call, a write to a full stderr). A file being renamed into place is waited
 /// for, so none is left half done. A process that has written nothing waits `idle_grace` first:
 /// an MPI launcher kills every rank as soon as one has exited, and the rank that writes the
 /// frames needs the time to finish (docs/ARCHITECTURE.md, Outputs).
@@ -186,14 +187,15 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
                     0 => String::new(),
                     n => format!("; removed {n} unfinished output(s)"),
                 };
-                match kept_summary(&w) {
-                    Some(kept) => crate::report!("error: interrupted by {name} {kept}{removed}"),
-                    None if w.done.is_empty() => crate::report!("error: interrupted by {name}"),
-                    None => crate::report!(
+                let message = match kept_summary(&w) {
+                    Some(kept) => format!("error: interrupted by {name} {kept}{removed}"),
+                    None if w.done.is_empty() => format!("error: interrupted by {name}"),
+                    None => format!(
                         "error: interrupted by {name}; removed the {} output file(s) this run wrote",
                         w.done.len()
                     ),
-                }
+                };
+                say_at_most(message, MESSAGE_WAIT);
                 if w.kept.is_empty()
                     && w.done.is_empty()
                     && w.partial.is_empty()
@@ -206,6 +208,30 @@ pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
         })
         .map_err(|e| DcrtError::Internal(format!("cannot start the signal thread: {e}")))?;
     Ok(())
+}
+
+/// How long an interruption waits for its message to reach stderr before it exits anyway.
+const MESSAGE_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Writes `line` to stderr from a thread of its own and waits at most `wait` for it: a stderr
+/// that nobody reads (a full pipe, a paused pager) blocks its writer, and holds stderr's lock
+/// against every other one, and must not keep an interrupted process from ending.
+fn say_at_most(line: String, wait: std::time::Duration) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let text = line.clone();
+    let spawned = std::thread::Builder::new()
+        .name("dcrt-signal-message".into())
+        .spawn(move || {
+            crate::progress::stderr_line(&text);
+            let _ = tx.send(());
+        });
+    match spawned {
+        Ok(_) => {
+            let _ = rx.recv_timeout(wait);
+        }
+        // No thread to spare: the message is worth the risk of the wait.
+        Err(_) => crate::progress::stderr_line(&line),
+    }
 }
 
 /// Asks for a 1 MiB stderr pipe (see `remove_on_interrupt`). Not a pipe, or a system that

@@ -355,6 +355,74 @@ fn an_interrupted_render_keeps_its_finished_frames() {
     }
 }
 
+/// SIGTERM to a render blocked writing to a stderr that nobody reads (a full pipe; a pager the
+/// user paused) still ends it, with 143, its finished frames whole and no temporary file: the
+/// interruption's message may wait on stderr, the exit does not. The output path is made long so
+/// that a few hundred frame lines fill the pipe.
+#[test]
+fn an_interrupted_render_ends_though_nobody_reads_its_stderr() {
+    use std::io::BufRead;
+    use std::time::{Duration, Instant};
+    let (d, s) = setup("out-sig-full-stderr");
+    let mut dir = d.0.clone();
+    for i in 0..14 {
+        dir.push(format!("{i:02}{}", "d".repeat(198)));
+    }
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_dcrt"))
+        .arg("render")
+        .arg(&s)
+        .arg("-o")
+        .arg(dir.join("f.png"))
+        .args(["--frames", "100000"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    while !line.starts_with("frame 2:") {
+        line.clear();
+        assert!(err.read_line(&mut line).unwrap() > 0, "no frame 2");
+    }
+    // From here nobody reads: wait until the frames stop coming (the render blocked on stderr).
+    let frames = || std::fs::read_dir(&dir).unwrap().count();
+    let limit = Instant::now() + Duration::from_secs(120);
+    let mut seen = (frames(), Instant::now());
+    while seen.1.elapsed() < Duration::from_millis(1500) {
+        assert!(Instant::now() < limit, "the render never blocked on stderr");
+        std::thread::sleep(Duration::from_millis(100));
+        let n = frames();
+        if n != seen.0 {
+            seen = (n, Instant::now());
+        }
+    }
+    let pid = child.id().to_string();
+    let sent = std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status();
+    assert!(sent.unwrap().success());
+    let limit = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() > limit {
+            let _ = child.kill();
+            panic!("a render blocked on stderr outlived SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(status.code(), Some(143));
+    let left = listing(&dir);
+    assert!(left.len() >= 3, "{} frames kept", left.len());
+    for (i, f) in left.iter().enumerate() {
+        assert_eq!(f, &format!("f_{i:04}.png"), "what is left: {left:?}");
+        let png = image::open(dir.join(f)).unwrap();
+        assert_eq!((png.width(), png.height()), (24, 16));
+    }
+}
+
 /// The EXR contract read back against values known in closed form: the scene's one triangle
 /// (0,0,0) (1,0,0) (0,1,0) seen straight down from 3 units above (0.3, 0.3): a pixel whose ray
 /// clearly hits it has `Z` = the distance along the normalized ray, `id` 0 and a unit `N` along
