@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs what dcrt needs on Debian: lavapipe (Vulkan on the CPU), libclang (bindgen for the mpi
-# crate), Open MPI, DejaVu fonts (the text of `--legend` and charts), Chromium and Firefox ESR
+# crate), Open MPI, DejaVu fonts (the text of `--legend` and charts), Embree 3 (the peer of
+# `bench rays --peer embree`, which a test runs), Chromium and Firefox ESR
 # with their WebDrivers (geckodriver built by cargo) and a Python venv holding selenium
 # (.view-venv: the browser tests of `dcrt view`), and cargo-nextest. On Debian 12, lavapipe comes from bookworm-backports (Mesa 25 rather than the
 # release's 22.3.6: the same images, faster kernels; DCRT_SYSTEM_MESA=1 keeps the release's).
@@ -10,7 +11,7 @@ sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"
 
 packages=(mesa-vulkan-drivers libvulkan1 vulkan-tools libclang-dev openmpi-bin libopenmpi-dev pkg-config fonts-dejavu-core
-  chromium chromium-driver firefox-esr python3-venv)
+  libembree-dev gcc chromium chromium-driver firefox-esr python3-venv)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -336,6 +336,65 @@ fn bench_json_reports_rates_counts_and_lane_share() {
     assert_eq!(row_num(&r["rows"][0], "lane_use"), lanes);
 }
 
+/// `bench rays --peer embree` (Embree 3 from scripts/setup.sh, the harness compiled by
+/// scripts/embree-peer.sh) traces each mode's rays beside dcrt's: the same camera rays with the
+/// same hits, as many AO rays (4 a hit), about as many path rays (the bounces' directions are the
+/// peer's own), a rate and a ratio per mode; shadows has no peer and says so.
+#[test]
+fn bench_rays_peer_traces_each_mode_s_rays() {
+    let out = dcrt(&[
+        &"bench",
+        &"rays",
+        &"--generator",
+        &"rm",
+        &"--triangles",
+        &"8000",
+        &"--width",
+        &"48",
+        &"--height",
+        &"40",
+        &"--runs",
+        &"1",
+        &"--modes",
+        &"cast,ao,path,shadows",
+        &"--peer",
+        &"embree",
+        &"--json",
+        &"-q",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("no peer for shadows rays"), "{err}");
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = r["rows"].as_array().unwrap();
+    let dcrt_rays = |mode: &str| {
+        let row = rows.iter().find(|x| x["mode"] == mode).unwrap();
+        row["rays"].as_u64().unwrap()
+    };
+    let peers = r["peers"].as_array().unwrap();
+    let modes: Vec<&str> = peers.iter().map(|p| p["mode"].as_str().unwrap()).collect();
+    assert_eq!(modes, ["cast", "ao", "path"], "{r}");
+    assert_eq!(r["peer"]["mode"], "cast", "{r}");
+    for p in peers {
+        let mode = p["mode"].as_str().unwrap();
+        let (mine, theirs) = (dcrt_rays(mode), p["rays"].as_u64().unwrap());
+        match mode {
+            "cast" => assert_eq!((mine, theirs), (48 * 40, 48 * 40), "{p}"),
+            "ao" => assert_eq!(theirs, mine, "{p}"),
+            _ => assert!(
+                theirs.abs_diff(mine) * 10 < mine && theirs > 48 * 40 * 2,
+                "path rays: dcrt {mine}, peer {theirs}"
+            ),
+        }
+        assert!(p["hit_agreement"].as_f64().unwrap() > 0.99, "{p}");
+        let (ratio, rate) = (
+            p["ratio"].as_f64().unwrap(),
+            p["mrays_per_s"].as_f64().unwrap(),
+        );
+        assert!(ratio.is_finite() && ratio > 0.0 && rate > 0.0, "{p}");
+    }
+}
+
 /// `bench dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
 fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
     let mut args = vec![

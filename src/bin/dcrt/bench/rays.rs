@@ -37,8 +37,9 @@ pub struct RaysArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "cast")]
     modes: Vec<Mode>,
     /// A peer renderer run beside dcrt in the same run: `embree` traces the same camera rays on
-    /// every core and reports both rates, their ratio and how often the hits agree
-    /// (scripts/embree-peer.sh).
+    /// every core, in `ao` and `path` modes the same kinds and counts of secondary rays too, and
+    /// reports both rates per mode, their ratio and how often the camera rays' hits agree
+    /// (scripts/embree-peer.sh; no peer for `shadows`).
     #[arg(long, value_enum)]
     peer: Option<Peer>,
     #[command(flatten)]
@@ -50,8 +51,8 @@ pub struct RaysArgs {
 /// A peer renderer run beside dcrt in the same bench run, on the same cores.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Peer {
-    /// Embree 3 (`rtcIntersect8` packets, a thread per core) on the same camera rays, through
-    /// `scripts/embree-peer.sh`: primary-ray throughput.
+    /// Embree 3 (`rtcIntersect8` and `rtcOccluded8` packets, a thread per core) on the same
+    /// camera rays, through `scripts/embree-peer.sh`: the throughput of cast, AO and path rays.
     Embree,
 }
 
@@ -108,16 +109,20 @@ struct BenchRow {
     gpu_share: f64,
 }
 
-#[derive(serde::Serialize, serde::Deserialize)]
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
 struct PeerReport {
     peer: String,
+    /// The shading mode whose rays it traced (`cast`, `ao`, `path`).
+    mode: String,
     threads: u32,
     build_ms: f64,
     trace_ms_median: f64,
     trace_ms_min: f64,
     trace_ms_max: f64,
+    /// Rays traced in a frame, camera and secondary.
+    rays: u64,
     mrays_per_s: f64,
-    /// dcrt's primary-ray rate (the main row) over the peer's.
+    /// dcrt's rate in this mode (the main preset and store) over the peer's.
     #[serde(default)]
     ratio: f64,
     /// Pixels where dcrt and the peer agree on hit or miss and on the primitive id; pixels where
@@ -145,7 +150,9 @@ struct BenchReport {
     node_blocks_per_ray: f64,
     tri_blocks_per_ray: f64,
     lane_use: f64,
+    /// The peer on the first mode's rays (the main row's), and on each mode it has.
     peer: Option<PeerReport>,
+    peers: Vec<PeerReport>,
     rows: Vec<BenchRow>,
 }
 
@@ -246,14 +253,26 @@ fn run(
                 && r.mode == modes[0]
         })
         .unwrap_or(&rows[0]);
-    let peer = match (a.peer, peer_ids) {
-        (Some(Peer::Embree), Some(ids)) => {
-            let mut p = embree(a, &model, &camera, &ids)?;
-            p.ratio = main_row.mrays_per_s / p.mrays_per_s;
-            Some(p)
+    let mut peers = Vec::new();
+    if let (Some(Peer::Embree), Some(ids)) = (a.peer, peer_ids) {
+        let sun = camera.basis(a.scene.width, a.scene.height).key_light();
+        for &mode in &modes {
+            let Some(line) = peer_mode(mode, sun) else {
+                dcrt::report!(
+                    "--peer embree: no peer for {} rays; their row stands alone",
+                    mode.name()
+                );
+                continue;
+            };
+            let mut p = embree(a, &model, &camera, &line, &ids)?;
+            let row = rows.iter().find(|r| {
+                r.preset == main_row.preset && r.store == main_row.store && r.mode == mode
+            });
+            p.ratio = row.map_or(f64::NAN, |r| r.mrays_per_s) / p.mrays_per_s;
+            peers.push(p);
         }
-        _ => None,
-    };
+    }
+    let peer = peers.first().filter(|p| p.mode == modes[0].name()).cloned();
     let report = BenchReport {
         adapter: gpu.describe(),
         scene: scene.path.display().to_string(),
@@ -271,6 +290,7 @@ fn run(
         tri_blocks_per_ray: main_row.tri_blocks_per_ray,
         lane_use: main_row.lane_use,
         peer,
+        peers,
         rows: Vec::new(),
     };
     let report = BenchReport { rows, ..report };
@@ -338,6 +358,7 @@ fn run_file(a: &RaysArgs, gpu: &Gpu, path: &Path) -> Result<()> {
         tri_blocks_per_ray: main.tri_blocks_per_ray,
         lane_use: main.lane_use,
         peer: None,
+        peers: Vec::new(),
         rows: Vec::new(),
     };
     emit(a.report.json, &BenchReport { rows, ..report }, print)
@@ -401,9 +422,36 @@ fn peer_script() -> Result<PathBuf> {
         .context("--peer embree: scripts/embree-peer.sh not found (run from the source tree or set DCRT_EMBREE_PEER)")
 }
 
-/// Writes the model and the camera to a temporary folder, runs the Embree peer on it and
-/// compares its primitive ids with dcrt's (`ids`, one per pixel).
-fn embree(a: &RaysArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<PeerReport> {
+/// The peer's mode line (scripts/embree_peer.c) for the rays dcrt traces in `mode` with the
+/// bench's shading (`shading_for`), `sun` the direction towards the sun; `None` for shadows,
+/// which the peer does not trace.
+fn peer_mode(mode: Mode, sun: [f32; 3]) -> Option<String> {
+    let sh = shading_for(mode);
+    match mode {
+        Mode::Cast => Some("cast".into()),
+        Mode::Ao => Some(format!("ao {} {:e}", sh.ao_rays, sh.ao_distance)),
+        // No sun, no sun rays: the peer skips a sun whose direction is zero.
+        Mode::Path => {
+            let sun = if sh.sun_on() { sun } else { [0.0; 3] };
+            Some(format!(
+                "path {} {:e} {:e} {:e}",
+                sh.max_depth, sun[0], sun[1], sun[2]
+            ))
+        }
+        Mode::Shadows => None,
+    }
+}
+
+/// Writes the model, the camera and the peer's `mode` line to a temporary folder, runs the
+/// Embree peer on it and compares its camera rays' primitive ids with dcrt's (`ids`, one per
+/// pixel).
+fn embree(
+    a: &RaysArgs,
+    model: &Model,
+    camera: &Camera,
+    mode: &str,
+    ids: &[u32],
+) -> Result<PeerReport> {
     let script = peer_script()?;
     let dir = std::env::temp_dir().join(format!("dcrt-peer-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -418,7 +466,7 @@ fn embree(a: &RaysArgs, model: &Model, camera: &Camera, ids: &[u32]) -> Result<P
         let b = camera.basis(a.scene.width, a.scene.height);
         let v = |x: [f32; 3]| format!("{:e} {:e} {:e}", x[0], x[1], x[2]);
         let cam = format!(
-            "{} {} {}\n{}\n{}\n{}\n{}\n",
+            "{} {} {}\n{}\n{}\n{}\n{}\n{mode}\n",
             a.scene.width,
             a.scene.height,
             a.runs,
@@ -474,7 +522,7 @@ fn print(report: &BenchReport) {
     let t = Table(&[
         ("preset", -9),
         ("store", -8),
-        ("mode", -5),
+        ("mode", -7),
         ("build ms", 9),
         ("depth", 5),
         ("trace ms", 9),
@@ -512,12 +560,13 @@ fn print(report: &BenchReport) {
             format!("{:.0}", r.gpu_share * 100.0),
         ]);
     }
-    if let Some(p) = &report.peer {
+    for p in &report.peers {
         println!(
-            "peer      {} on {} threads: build {:.1} ms, trace {:.1} ms (min {:.1}, max {:.1}), \
+            "peer      {} on {} threads, {}: build {:.1} ms, trace {:.1} ms (min {:.1}, max {:.1}), \
              {:.3} Mrays/s",
             p.peer,
             p.threads,
+            p.mode,
             p.build_ms,
             p.trace_ms_median,
             p.trace_ms_min,
@@ -525,9 +574,9 @@ fn print(report: &BenchReport) {
             p.mrays_per_s
         );
         println!(
-            "ratio     dcrt / peer = {:.3} (primary rays); hits agree on {:.4} of pixels (hit or \
-             miss: {:.4})",
-            p.ratio, p.hit_agreement, p.hit_miss_agreement
+            "ratio     dcrt / peer = {:.3} ({} rays); camera rays' hits agree on {:.4} of pixels \
+             (hit or miss: {:.4})",
+            p.ratio, p.mode, p.hit_agreement, p.hit_miss_agreement
         );
     }
 }
