@@ -154,16 +154,8 @@ fn kept_summary(w: &Written) -> Option<String> {
 /// for, so none is left half done. A process that has written nothing waits `idle_grace` first:
 /// an MPI launcher kills every rank as soon as one has exited, and the rank that writes the
 /// frames needs the time to finish (docs/ARCHITECTURE.md, Outputs).
-///
-/// The message must find room on stderr: mpirun stops reading its ranks' pipes while it stops
-/// a job (it sends SIGCONT, sleeps a second, sends SIGTERM, sleeps, sends SIGKILL), so a rank
-/// that writes a line a frame fills the 64 KiB a pipe holds by default, blocks in that write
-/// and, its message never written, is killed. A stderr pipe is therefore enlarged to 1 MiB (the
-/// most an unprivileged process may ask for), which holds a second of lines at over 5,000
-/// frames a second.
 pub fn remove_on_interrupt(idle_grace: std::time::Duration) -> Result<()> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
-    enlarge_stderr_pipe();
     let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
         .map_err(|e| DcrtError::Internal(format!("cannot install the signal handlers: {e}")))?;
     std::thread::Builder::new()
@@ -234,14 +226,33 @@ fn say_at_most(line: String, wait: std::time::Duration) {
     }
 }
 
-/// Asks for a 1 MiB stderr pipe (see `remove_on_interrupt`). Not a pipe, or a system that
-/// allows less: stderr stays as it is, which only matters if a launcher stops reading it.
-fn enlarge_stderr_pipe() {
+/// Grows a stderr pipe to 1 MiB, or to the most the system allows an unprivileged process if
+/// that is less, for a rank that writes a line a frame under mpirun: mpirun stops reading its
+/// ranks' pipes while it stops a job (SIGCONT, a second's sleep, SIGTERM, another, SIGKILL), and
+/// with the default 64 KiB such a rank filled its pipe in that second, blocked in the write and
+/// was killed before its interruption message (`remove_on_interrupt`) said what it kept. 1 MiB
+/// holds a second of lines at over 5,000 frames a second. Only for the ranks that need it: every
+/// 1 MiB pipe counts against the user's pipe pages (64 MiB by default), past which the kernel
+/// gives every new pipe of that user a single page. Not a pipe, or a larger one already: left
+/// as it is.
+pub fn enlarge_stderr_pipe() {
     use std::os::fd::AsFd;
+    const WANT: usize = 1 << 20;
     let stderr = std::io::stderr();
-    match rustix::pipe::fcntl_setpipe_size(stderr.as_fd(), 1 << 20) {
-        Ok(size) => log::debug!("stderr pipe holds {size} bytes"),
-        Err(e) => log::debug!("stderr left as it is ({e})"),
+    let Ok(have) = rustix::pipe::fcntl_getpipe_size(stderr.as_fd()) else {
+        return;
+    };
+    let most = std::fs::read_to_string("/proc/sys/fs/pipe-max-size")
+        .ok()
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(WANT);
+    let want = WANT.min(most);
+    if have >= want {
+        return;
+    }
+    match rustix::pipe::fcntl_setpipe_size(stderr.as_fd(), want) {
+        Ok(size) => log::debug!("stderr pipe grown from {have} to {size} bytes"),
+        Err(e) => log::debug!("stderr pipe left at {have} bytes ({e})"),
     }
 }
 

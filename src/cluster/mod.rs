@@ -70,6 +70,25 @@ fn launched_ranks_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
     .find_map(|v| var(v)?.trim().parse().ok())
 }
 
+/// This process's rank in the launcher's job, from the same launchers' variables; `None` when
+/// it was started on its own.
+pub fn launched_rank() -> Option<u32> {
+    launched_rank_in(|v| std::env::var(v).ok())
+}
+
+/// `launched_rank` with the environment given as a function of the variable's name.
+fn launched_rank_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
+    [
+        "OMPI_COMM_WORLD_RANK",
+        "PMI_RANK",
+        "PMIX_RANK",
+        "MV2_COMM_WORLD_RANK",
+        "SLURM_PROCID",
+    ]
+    .iter()
+    .find_map(|v| var(v)?.trim().parse().ok())
+}
+
 /// Which rank does what.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Roles {
@@ -238,6 +257,22 @@ mod tests {
         // Open MPI's own variable first.
         let both = env(&[("SLURM_STEP_NUM_TASKS", "8"), ("OMPI_COMM_WORLD_SIZE", "4")]);
         assert_eq!(launched_ranks_in(both), Some(4));
+        // And this process's rank.
+        assert_eq!(launched_rank_in(env(&[])), None);
+        assert_eq!(
+            launched_rank_in(env(&[("OMPI_COMM_WORLD_RANK", "0")])),
+            Some(0)
+        );
+        assert_eq!(launched_rank_in(env(&[("PMI_RANK", "2")])), Some(2));
+        assert_eq!(launched_rank_in(env(&[("PMIX_RANK", "5\n")])), Some(5));
+        assert_eq!(
+            launched_rank_in(env(&[("MV2_COMM_WORLD_RANK", "1")])),
+            Some(1)
+        );
+        assert_eq!(launched_rank_in(env(&[("SLURM_PROCID", "7")])), Some(7));
+        assert_eq!(launched_rank_in(env(&[("SLURM_PROCID", "")])), None);
+        let both = env(&[("SLURM_PROCID", "3"), ("OMPI_COMM_WORLD_RANK", "1")]);
+        assert_eq!(launched_rank_in(both), Some(1));
     }
 
     #[test]

@@ -380,7 +380,12 @@ fn bench_rays_peer_traces_each_mode_s_rays() {
         let (mine, theirs) = (dcrt_rays(mode), p["rays"].as_u64().unwrap());
         match mode {
             "cast" => assert_eq!((mine, theirs), (48 * 40, 48 * 40), "{p}"),
-            "ao" => assert_eq!(theirs, mine, "{p}"),
+            // 4 AO rays a hit: as many as dcrt's but for pixels whose camera ray the two decide
+            // differently (hit or miss).
+            "ao" => {
+                let split = (1.0 - p["hit_miss_agreement"].as_f64().unwrap()) * (48.0 * 40.0);
+                assert!(theirs.abs_diff(mine) as f64 <= 4.0 * split.round(), "{p}");
+            }
             _ => assert!(
                 theirs.abs_diff(mine) * 10 < mine && theirs > 48 * 40 * 2,
                 "path rays: dcrt {mine}, peer {theirs}"

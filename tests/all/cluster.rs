@@ -795,6 +795,15 @@ fn a_hung_rank_ends_the_job_within_its_timeout() {
     }
 }
 
+/// The bytes the stderr pipe of process `pid` holds (its write end opened again through /proc).
+fn stderr_pipe_size(pid: u32) -> Option<usize> {
+    let f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(format!("/proc/{pid}/fd/2"))
+        .ok()?;
+    rustix::pipe::fcntl_getpipe_size(&f).ok()
+}
+
 /// The process of world rank `rank` of a job whose command line holds `mark`.
 fn rank_pid(mark: &str, rank: u32) -> Option<u32> {
     let want = format!("OMPI_COMM_WORLD_RANK={rank}");
@@ -878,9 +887,24 @@ fn sigterm_to_mpirun_ends_every_rank_and_keeps_the_finished_frames() {
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
     let limit = Duration::from_secs(90);
-    let (status, err, took) = crate::outputs::signal_after(cmd, "frame 2:", "TERM", limit);
+    // Just before the signal: how much the display's stderr pipe holds.
+    let mark = dir.0.to_string_lossy().into_owned();
+    let display_pipe = std::cell::Cell::new(None);
+    let (status, err, took) =
+        crate::outputs::signal_after_to(cmd, "frame 2:", "TERM", limit, &|mpirun| {
+            display_pipe.set(rank_pid(&mark, 0).and_then(stderr_pipe_size));
+            mpirun
+        });
     assert!(!status.success(), "the job should fail:\n{err}");
     eprintln!("the job ended {took:?} after SIGTERM");
+    let most: usize = std::fs::read_to_string("/proc/sys/fs/pipe-max-size")
+        .map_or(1 << 20, |s| s.trim().parse().unwrap());
+    let want = most.min(1 << 20);
+    assert!(
+        display_pipe.get().is_some_and(|s| s >= want),
+        "the display's stderr pipe holds {:?} bytes, not {want}",
+        display_pipe.get()
+    );
     let left = listing(&dir.0);
     let frames: Vec<u32> = left
         .iter()
@@ -900,7 +924,6 @@ fn sigterm_to_mpirun_ends_every_rank_and_keeps_the_finished_frames() {
         assert_eq!((png.width(), png.height()), (8, 6), "frame {f}");
     }
     // No rank outlives mpirun: none of them has this test's directory on its command line.
-    let mark = dir.0.to_string_lossy().into_owned();
     let alive: Vec<String> = std::fs::read_dir("/proc")
         .unwrap()
         .filter_map(|e| {

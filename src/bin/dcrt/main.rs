@@ -136,6 +136,11 @@ fn main() -> ExitCode {
         Some(k) if k > 1 => std::time::Duration::from_millis(500),
         _ => std::time::Duration::ZERO,
     };
+    // The display (a job's only rank, alone) writes a line a frame, which must not fill its
+    // stderr while mpirun stops the job and reads none of it (docs/ARCHITECTURE.md, Outputs).
+    if dcrt::cluster::launched_rank() == Some(dcrt::cluster::Roles::DISPLAY) {
+        dcrt::files::enlarge_stderr_pipe();
+    }
     if let Err(e) = dcrt::files::remove_on_interrupt(grace) {
         dcrt::report!("error: {e}");
         return ExitCode::FAILURE;
