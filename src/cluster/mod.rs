@@ -59,15 +59,21 @@ pub fn launched_ranks() -> Option<u32> {
 
 /// `launched_ranks` with the environment given as a function of the variable's name.
 fn launched_ranks_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
-    [
-        "OMPI_COMM_WORLD_SIZE",
-        "PMI_SIZE",
-        "PMIX_SIZE",
-        "MV2_COMM_WORLD_SIZE",
-        "SLURM_STEP_NUM_TASKS",
-    ]
-    .iter()
-    .find_map(|v| var(v)?.trim().parse().ok())
+    first_number(
+        &[
+            "OMPI_COMM_WORLD_SIZE",
+            "PMI_SIZE",
+            "PMIX_SIZE",
+            "MV2_COMM_WORLD_SIZE",
+            "SLURM_STEP_NUM_TASKS",
+        ],
+        var,
+    )
+}
+
+/// The first of the variables `names` that holds a number (Open MPI's own first).
+fn first_number(names: &[&str], var: impl Fn(&str) -> Option<String>) -> Option<u32> {
+    names.iter().find_map(|v| var(v)?.trim().parse().ok())
 }
 
 /// This process's rank in the launcher's job, from the same launchers' variables; `None` when
@@ -78,15 +84,16 @@ pub fn launched_rank() -> Option<u32> {
 
 /// `launched_rank` with the environment given as a function of the variable's name.
 fn launched_rank_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
-    [
-        "OMPI_COMM_WORLD_RANK",
-        "PMI_RANK",
-        "PMIX_RANK",
-        "MV2_COMM_WORLD_RANK",
-        "SLURM_PROCID",
-    ]
-    .iter()
-    .find_map(|v| var(v)?.trim().parse().ok())
+    first_number(
+        &[
+            "OMPI_COMM_WORLD_RANK",
+            "PMI_RANK",
+            "PMIX_RANK",
+            "MV2_COMM_WORLD_RANK",
+            "SLURM_PROCID",
+        ],
+        var,
+    )
 }
 
 /// Which rank does what.
