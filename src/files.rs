@@ -252,7 +252,10 @@ pub fn enlarge_stderr_pipe() {
     }
     match rustix::pipe::fcntl_setpipe_size(stderr.as_fd(), want) {
         Ok(size) => log::debug!("stderr pipe grown from {have} to {size} bytes"),
-        Err(e) => log::debug!("stderr pipe left at {have} bytes ({e})"),
+        Err(e) => log::warn!(
+            "stderr pipe left at {have} bytes ({e}): if mpirun stops the job while it is full, \
+             the message saying which frames were kept may be lost"
+        ),
     }
 }
 

@@ -54,46 +54,36 @@ use std::time::Duration;
 /// How many ranks the launcher started, from the variables mpirun and srun set; `None` when this
 /// process was started on its own.
 pub fn launched_ranks() -> Option<u32> {
-    launched_ranks_in(|v| std::env::var(v).ok())
-}
-
-/// `launched_ranks` with the environment given as a function of the variable's name.
-fn launched_ranks_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
-    first_number(
-        &[
-            "OMPI_COMM_WORLD_SIZE",
-            "PMI_SIZE",
-            "PMIX_SIZE",
-            "MV2_COMM_WORLD_SIZE",
-            "SLURM_STEP_NUM_TASKS",
-        ],
-        var,
-    )
-}
-
-/// The first of the variables `names` that holds a number (Open MPI's own first).
-fn first_number(names: &[&str], var: impl Fn(&str) -> Option<String>) -> Option<u32> {
-    names.iter().find_map(|v| var(v)?.trim().parse().ok())
+    first_number(SIZE_VARS, |v| std::env::var(v).ok())
 }
 
 /// This process's rank in the launcher's job, from the same launchers' variables; `None` when
 /// it was started on its own.
 pub fn launched_rank() -> Option<u32> {
-    launched_rank_in(|v| std::env::var(v).ok())
+    first_number(RANK_VARS, |v| std::env::var(v).ok())
 }
 
-/// `launched_rank` with the environment given as a function of the variable's name.
-fn launched_rank_in(var: impl Fn(&str) -> Option<String>) -> Option<u32> {
-    first_number(
-        &[
-            "OMPI_COMM_WORLD_RANK",
-            "PMI_RANK",
-            "PMIX_RANK",
-            "MV2_COMM_WORLD_RANK",
-            "SLURM_PROCID",
-        ],
-        var,
-    )
+/// The launchers' variables for the job's size and this process's rank: Open MPI, PMI, PMIx,
+/// MVAPICH, Slurm.
+const SIZE_VARS: &[&str] = &[
+    "OMPI_COMM_WORLD_SIZE",
+    "PMI_SIZE",
+    "PMIX_SIZE",
+    "MV2_COMM_WORLD_SIZE",
+    "SLURM_STEP_NUM_TASKS",
+];
+const RANK_VARS: &[&str] = &[
+    "OMPI_COMM_WORLD_RANK",
+    "PMI_RANK",
+    "PMIX_RANK",
+    "MV2_COMM_WORLD_RANK",
+    "SLURM_PROCID",
+];
+
+/// The first of the variables `names` that holds a number (Open MPI's own first), the
+/// environment given as a function of the variable's name.
+fn first_number(names: &[&str], var: impl Fn(&str) -> Option<String>) -> Option<u32> {
+    names.iter().find_map(|v| var(v)?.trim().parse().ok())
 }
 
 /// Which rank does what.
@@ -242,44 +232,53 @@ mod tests {
                     .map(|(_, v)| v.to_string())
             }
         };
-        assert_eq!(launched_ranks_in(env(&[])), None);
+        assert_eq!(first_number(SIZE_VARS, env(&[])), None);
         assert_eq!(
-            launched_ranks_in(env(&[("OMPI_COMM_WORLD_SIZE", "4")])),
+            first_number(SIZE_VARS, env(&[("OMPI_COMM_WORLD_SIZE", "4")])),
             Some(4)
         );
-        assert_eq!(launched_ranks_in(env(&[("PMI_SIZE", "3")])), Some(3));
-        assert_eq!(launched_ranks_in(env(&[("PMIX_SIZE", " 6\n")])), Some(6));
+        assert_eq!(first_number(SIZE_VARS, env(&[("PMI_SIZE", "3")])), Some(3));
         assert_eq!(
-            launched_ranks_in(env(&[("MV2_COMM_WORLD_SIZE", "2")])),
+            first_number(SIZE_VARS, env(&[("PMIX_SIZE", " 6\n")])),
+            Some(6)
+        );
+        assert_eq!(
+            first_number(SIZE_VARS, env(&[("MV2_COMM_WORLD_SIZE", "2")])),
             Some(2)
         );
         assert_eq!(
-            launched_ranks_in(env(&[("SLURM_STEP_NUM_TASKS", "8")])),
+            first_number(SIZE_VARS, env(&[("SLURM_STEP_NUM_TASKS", "8")])),
             Some(8)
         );
         assert_eq!(
-            launched_ranks_in(env(&[("SLURM_STEP_NUM_TASKS", "x")])),
+            first_number(SIZE_VARS, env(&[("SLURM_STEP_NUM_TASKS", "x")])),
             None
         );
         // Open MPI's own variable first.
         let both = env(&[("SLURM_STEP_NUM_TASKS", "8"), ("OMPI_COMM_WORLD_SIZE", "4")]);
-        assert_eq!(launched_ranks_in(both), Some(4));
+        assert_eq!(first_number(SIZE_VARS, both), Some(4));
         // And this process's rank.
-        assert_eq!(launched_rank_in(env(&[])), None);
+        assert_eq!(first_number(RANK_VARS, env(&[])), None);
         assert_eq!(
-            launched_rank_in(env(&[("OMPI_COMM_WORLD_RANK", "0")])),
+            first_number(RANK_VARS, env(&[("OMPI_COMM_WORLD_RANK", "0")])),
             Some(0)
         );
-        assert_eq!(launched_rank_in(env(&[("PMI_RANK", "2")])), Some(2));
-        assert_eq!(launched_rank_in(env(&[("PMIX_RANK", "5\n")])), Some(5));
+        assert_eq!(first_number(RANK_VARS, env(&[("PMI_RANK", "2")])), Some(2));
         assert_eq!(
-            launched_rank_in(env(&[("MV2_COMM_WORLD_RANK", "1")])),
+            first_number(RANK_VARS, env(&[("PMIX_RANK", "5\n")])),
+            Some(5)
+        );
+        assert_eq!(
+            first_number(RANK_VARS, env(&[("MV2_COMM_WORLD_RANK", "1")])),
             Some(1)
         );
-        assert_eq!(launched_rank_in(env(&[("SLURM_PROCID", "7")])), Some(7));
-        assert_eq!(launched_rank_in(env(&[("SLURM_PROCID", "")])), None);
+        assert_eq!(
+            first_number(RANK_VARS, env(&[("SLURM_PROCID", "7")])),
+            Some(7)
+        );
+        assert_eq!(first_number(RANK_VARS, env(&[("SLURM_PROCID", "")])), None);
         let both = env(&[("SLURM_PROCID", "3"), ("OMPI_COMM_WORLD_RANK", "1")]);
-        assert_eq!(launched_rank_in(both), Some(1));
+        assert_eq!(first_number(RANK_VARS, both), Some(1));
     }
 
     #[test]

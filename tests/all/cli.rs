@@ -292,30 +292,42 @@ fn paraview_camera_files() {
     assert!(!out.exists());
 }
 
+/// `bench BENCH --json -q` on an 8,000-triangle `generator` model at 48x40 with `extra`: its
+/// report and its stderr (the run must succeed).
+fn small_bench(bench: &str, generator: &str, extra: &[&str]) -> (serde_json::Value, String) {
+    let mut args = vec![
+        "bench",
+        bench,
+        "--generator",
+        generator,
+        "--triangles",
+        "8000",
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--json",
+        "-q",
+    ];
+    args.extend_from_slice(extra);
+    let args: Vec<&dyn AsRef<std::ffi::OsStr>> = args.iter().map(|a| a as _).collect();
+    let out = dcrt(&args);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    (serde_json::from_slice(&out.stdout).unwrap(), err)
+}
+
+/// `bench rays` of `small_bench`, one run.
+fn small_rays_bench(generator: &str, extra: &[&str]) -> (serde_json::Value, String) {
+    small_bench("rays", generator, &[&["--runs", "1"], extra].concat())
+}
+
 /// `bench rays --json` keeps the keys scripts read (docs/ARCHITECTURE.md, CLI contract) and adds
 /// the traversal's counts, the lane share among them: steps over the iterations lanes ran, a
 /// share.
 #[test]
 fn bench_json_reports_rates_counts_and_lane_share() {
-    let out = dcrt(&[
-        &"bench",
-        &"rays",
-        &"--generator",
-        &"assembly",
-        &"--triangles",
-        &"8000",
-        &"--width",
-        &"48",
-        &"--height",
-        &"40",
-        &"--runs",
-        &"1",
-        &"--json",
-        &"-q",
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (r, _) = small_rays_bench("assembly", &[]);
     assert!(r["adapter"].is_string(), "{r}");
     assert_eq!(
         (r["width"].as_u64(), r["height"].as_u64()),
@@ -342,30 +354,9 @@ fn bench_json_reports_rates_counts_and_lane_share() {
 /// peer's own), a rate and a ratio per mode; shadows has no peer and says so.
 #[test]
 fn bench_rays_peer_traces_each_mode_s_rays() {
-    let out = dcrt(&[
-        &"bench",
-        &"rays",
-        &"--generator",
-        &"rm",
-        &"--triangles",
-        &"8000",
-        &"--width",
-        &"48",
-        &"--height",
-        &"40",
-        &"--runs",
-        &"1",
-        &"--modes",
-        &"cast,ao,path,shadows",
-        &"--peer",
-        &"embree",
-        &"--json",
-        &"-q",
-    ]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    let extra = ["--modes", "cast,ao,path,shadows", "--peer", "embree"];
+    let (r, err) = small_rays_bench("rm", &extra);
     assert!(err.contains("no peer for shadows rays"), "{err}");
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = r["rows"].as_array().unwrap();
     let dcrt_rays = |mode: &str| {
         let row = rows.iter().find(|x| x["mode"] == mode).unwrap();
@@ -400,30 +391,9 @@ fn bench_rays_peer_traces_each_mode_s_rays() {
     }
 }
 
-/// `bench dc --json -q` on an 8,000-triangle `rm` at 48x40, 2-frame orbits, with `extra`.
+/// `bench dc` of `small_bench` on `rm`, 2-frame orbits.
 fn small_dc_bench(extra: &[&str]) -> serde_json::Value {
-    let mut args = vec![
-        "bench",
-        "dc",
-        "--generator",
-        "rm",
-        "--triangles",
-        "8000",
-        "--width",
-        "48",
-        "--height",
-        "40",
-        "--frames",
-        "2",
-        "--json",
-        "-q",
-    ];
-    args.extend_from_slice(extra);
-    let args: Vec<&dyn AsRef<std::ffi::OsStr>> = args.iter().map(|a| a as _).collect();
-    let out = dcrt(&args);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    serde_json::from_slice(&out.stdout).unwrap()
+    small_bench("dc", "rm", &[&["--frames", "2"], extra].concat()).0
 }
 
 /// A number a `bench` report or row holds under `k`.
