@@ -1,14 +1,25 @@
 #!/usr/bin/env bash
-# Primary-ray throughput on a real GPU: prints the adapter, Mrays/s, steps per ray, nodes per
-# block and the share of busy lanes of `dcrt bench rays` on the rm and assembly generators at
-# 1024x1024, both block stores.
+# dcrt's speed on a real GPU, every figure the speed issue asks for in one run:
 #
-#   scripts/gpu-bench.sh [DCRT_BINARY] [extra dcrt bench rays options...]
+# 1. rays: per scene (`rm`, `assembly`), shading mode (cast, ao, path) and block store (texture,
+#    buffer) Mrays/s, steps a ray, nodes a node block and the share of busy lanes (`bench rays`);
+# 2. dc: the distributed cache's table (`bench dc`: `rm`, rank 0 of 8 virtual ranks, the root
+#    block replicated, caches 1/8 and 1/32, every mapping) at each size in DC_SIZES, for a
+#    camera turning 3 degrees a frame (a user's) and 120 (the bench's default orbit).
+#
+#   scripts/gpu-bench.sh [DCRT_BINARY] [extra `bench rays` options...]
 #
 # Needs only the dcrt binary and a Vulkan loader with a driver. Without a binary argument it
 # uses target/release/dcrt, building it first (without MPI, which a GPU box may lack) when cargo
-# is at hand. ADAPTER picks an adapter by part of its name (default: the best GPU wgpu finds);
-# TRIANGLES and SIZE change the scene (defaults 1000000 and 1024).
+# is at hand. Settings, from the environment:
+#   ADAPTER       part of the adapter's name (default: the best GPU wgpu finds)
+#   TRIANGLES     triangles of the rays scenes (default 1000000); SIZE their image side (1024)
+#   MODES         shading modes of the rays part (default cast,ao,path)
+#   DC_TRIANGLES  triangles of the dc scene (default 677000); DC_SIZES its image sides ("512 1024")
+#   DC_FRAMES     frames of each dc orbit, the first cold (default 4)
+#   PARTS         which parts run (default "rays dc")
+#   OUT           a folder: each bench's JSON and the printed tables are also written there
+#   LIMIT         seconds any one bench may run before it is stopped (default 300)
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 bin="${1:-}"
@@ -23,21 +34,63 @@ fi
 [ -x "$bin" ] || { echo "gpu-bench: $bin is not an executable" >&2; exit 1; }
 tris="${TRIANGLES:-1000000}"
 size="${SIZE:-1024}"
+modes="${MODES:-cast,ao,path}"
+dc_tris="${DC_TRIANGLES:-677000}"
+dc_sizes="${DC_SIZES:-512 1024}"
+dc_frames="${DC_FRAMES:-4}"
+parts="${PARTS:-rays dc}"
+limit="${LIMIT:-300}"
+out="${OUT:-}"
+[ -n "$out" ] && mkdir -p "$out"
 adapter=()
 [ -n "${ADAPTER:-}" ] && adapter=(--adapter "$ADAPTER")
-for gen in rm assembly; do
-    json="$("$bin" bench rays --generator "$gen" --triangles "$tris" --width "$size" --height "$size" \
-        --stores --json "${adapter[@]}" "$@")"
-    # The JSON is printed pretty; pick the figures without needing jq or python.
-    echo "$json" | awk -v gen="$gen" '
-        /"adapter":/ { sub(/^[^:]*: /, ""); sub(/,$/, ""); printf "adapter   %s\n", $0 }
-        /"store":/ { gsub(/[",]/, "", $2); store = $2 }
-        /"mode":/ { gsub(/[",]/, "", $2); mode = $2 }
-        /"mrays_per_s":/ && store != "" { gsub(/,/, "", $2); m = $2 }
-        /"steps_per_ray":/ && store != "" { gsub(/,/, "", $2); s = $2 }
-        /"nodes_per_node_block":/ && store != "" { gsub(/,/, "", $2); n = $2 }
-        /"lane_use":/ && store != "" { gsub(/,/, "", $2); l = $2 }
-        /"shade_share":/ && store != "" {
-            printf "%-9s %-8s %-5s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block %5.1f%% lanes busy\n", gen, store, mode, m, s, n, 100 * l
-        }'
+
+# Saves stdin as $out/$1 when OUT is given, and passes it on.
+keep() {
+    if [ -n "$out" ]; then tee "$out/$1"; else cat; fi
+}
+
+for part in $parts; do
+    case "$part" in
+    rays | dc) ;;
+    *)
+        echo "gpu-bench: unknown part '$part' in PARTS (rays, dc)" >&2
+        exit 2
+        ;;
+    esac
+done
+
+for part in $parts; do
+    case "$part" in
+    rays)
+        for gen in rm assembly; do
+            json="$(timeout "$limit" "$bin" bench rays --generator "$gen" --triangles "$tris" \
+                --width "$size" --height "$size" --modes "$modes" --stores --json "${adapter[@]}" "$@")"
+            [ -n "$out" ] && echo "$json" >"$out/rays-$gen.json"
+            # The JSON is printed pretty, one key a line: the figures without jq or python.
+            echo "$json" | awk -v gen="$gen" '
+                /"adapter":/ { sub(/^[^:]*: /, ""); gsub(/^"|",?$/, ""); printf "adapter   %s\n", $0 }
+                /"store":/ { gsub(/[",]/, "", $2); store = $2 }
+                /"mode":/ { gsub(/[",]/, "", $2); mode = $2 }
+                /"mrays_per_s":/ && store != "" { gsub(/,/, "", $2); m = $2 }
+                /"steps_per_ray":/ && store != "" { gsub(/,/, "", $2); s = $2 }
+                /"nodes_per_node_block":/ && store != "" { gsub(/,/, "", $2); n = $2 }
+                /"lane_use":/ && store != "" { gsub(/,/, "", $2); l = $2 }
+                /"shade_share":/ && store != "" {
+                    printf "%-9s %-8s %-7s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block %5.1f%% lanes busy\n", gen, store, mode, m, s, n, 100 * l
+                }' | keep "rays-$gen.txt"
+        done
+        ;;
+    dc)
+        for s in $dc_sizes; do
+            for step in 3 120; do
+                echo "dc        rm $dc_tris triangles, ${s}x$s, rank 0 of 8, root replicated, ${step} degrees a frame"
+                timeout "$limit" "$bin" bench dc --generator rm --triangles "$dc_tris" --width "$s" \
+                    --height "$s" --caches 1/8,1/32 --cache-maps ize,demarle,lru \
+                    --replicate-blocks root --frames "$dc_frames" --step "$step" -q "${adapter[@]}" |
+                    keep "dc-$s-$step.txt"
+            done
+        done
+        ;;
+    esac
 done

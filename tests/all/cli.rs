@@ -546,3 +546,82 @@ fn measurement_switches_are_bench_options_not_render_options() {
         }
     }
 }
+
+/// scripts/gpu-bench.sh, the run prepared for a lent GPU, works on the driver at hand with tiny
+/// scenes: a line per scene, store and mode, the distributed cache's table for both camera steps
+/// with a row per cache and mapping, each bench's output kept in OUT; an unknown part is refused
+/// before anything runs.
+#[test]
+fn gpu_bench_script_prints_every_mode_and_the_dc_table() {
+    let d = TempDir::new("gpu-bench");
+    let out = d.path("out");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/gpu-bench.sh");
+    let run = |parts: &str| {
+        std::process::Command::new("bash")
+            .arg(script)
+            .arg(env!("CARGO_BIN_EXE_dcrt"))
+            .args(["--runs", "1"])
+            .envs([
+                ("TRIANGLES", "3000"),
+                ("SIZE", "24"),
+                ("DC_TRIANGLES", "3000"),
+                ("DC_SIZES", "24"),
+                ("DC_FRAMES", "2"),
+                ("PARTS", parts),
+                ("LIMIT", "200"),
+            ])
+            .env("OUT", &out)
+            .output()
+            .unwrap()
+    };
+    let r = run("rays dc");
+    let text = String::from_utf8_lossy(&r.stdout).into_owned();
+    assert!(
+        r.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert!(text.starts_with("adapter "), "{text}");
+    for generator in ["rm", "assembly"] {
+        for store in ["texture", "buffer"] {
+            for mode in ["cast", "ao", "path"] {
+                let line = text
+                    .lines()
+                    .find(|l| l.split_whitespace().take(3).eq([generator, store, mode]))
+                    .unwrap_or_else(|| panic!("no {generator} {store} {mode} line: {text}"));
+                let rate: f64 = line.split_whitespace().nth(3).unwrap().parse().unwrap();
+                assert!(rate > 0.0 && line.contains("Mrays/s"), "{line}");
+            }
+        }
+        let json = std::fs::read_to_string(out.join(format!("rays-{generator}.json"))).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v["rows"].as_array().unwrap().len(), 6, "{json}");
+    }
+    for step in ["3", "120"] {
+        let table = std::fs::read_to_string(out.join(format!("dc-24-{step}.txt"))).unwrap();
+        assert!(text.contains(&table), "the table printed is the one kept");
+        assert!(
+            table.lines().any(|l| l.starts_with("replicated ")),
+            "{table}"
+        );
+        for map in ["ize", "demarle", "lru"] {
+            for cache in ["1/8", "1/32"] {
+                assert!(
+                    table
+                        .lines()
+                        .any(|l| l.split_whitespace().take(4).eq(["dc", cache, map, "root"])),
+                    "no {cache} {map} row for a {step} degree step: {table}"
+                );
+            }
+        }
+    }
+    let r = run("rays frames");
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    assert!(err.contains("unknown part 'frames'"), "{err}");
+    assert!(
+        r.stdout.is_empty(),
+        "ran before refusing: {}",
+        String::from_utf8_lossy(&r.stdout)
+    );
+}
