@@ -4,8 +4,8 @@
 // scalars before mapping) through the mesh's colormap, or a direct colour. A rank that lacks the
 // attribute block faults it like any block (`locate`) and leaves the slot unresolved; the host
 // serves the round's faults and dispatches again, and resolved slots are skipped. Rays that only
-// traverse never read an attribute block. Slots: wave_slot(i, albedo_stride - 1, albedo_stride), which
-// is mode_wave_slot in every mode with albedos (ambient occlusion reads none).
+// traverse never read an attribute block. Slots: wave_slot(i, albedo_stride - 1, albedo_stride),
+// the last ray of the pixel's wave (ambient occlusion reads no albedo).
 #import params
 #import ray
 #import blocks

@@ -33,7 +33,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let fan = shading.fan;
     if MODE == MODE_SHADOWS {
         for (var k = 0u; k < fan; k++) {
-            let r = ray_state(rays[mode_wave_slot(i, k, fan)]);
+            let r = ray_state(rays[wave_slot(i, k, fan)]);
             if unoccluded(r) {
                 let l = shading.lights[k];
                 var e = l.color.xyz;
@@ -47,7 +47,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else if MODE == MODE_AO {
         var open = 0u;
         for (var k = 0u; k < fan; k++) {
-            open += u32(unoccluded(ray_state(rays[mode_wave_slot(i, k, fan)])));
+            open += u32(unoccluded(ray_state(rays[wave_slot(i, k, fan)])));
         }
         path.l = vec3(f32(open) / f32(fan));
         path.alive = 0u;
@@ -55,13 +55,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var kb = 0u;
         if shading.sun.w != 0.0 {
             kb = 1u;
-            let s = ray_state(rays[mode_wave_slot(i, 0u, fan)]);
+            let s = ray_state(rays[wave_slot(i, 0u, fan)]);
             if unoccluded(s) {
                 let cos_s = dot(shading.sun_dir.xyz, path.n);
                 path.l += path.tp * path.albedo * (1.0 / PI) * shading.sun.xyz * cos_s;
             }
         }
-        let r = ray_state(rays[mode_wave_slot(i, kb, fan)]);
+        let r = ray_state(rays[wave_slot(i, kb, fan)]);
         // Cosine-weighted sampling: the Lambertian BRDF times cosine over the pdf is the albedo.
         path.tp *= path.albedo;
         if r.status != DONE {
@@ -79,7 +79,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let mesh = meshes[mesh_of(r.prim)];
             path.albedo = mesh.color.xyz;
             if COLORED && mesh.look != LOOK_CONSTANT {
-                path.albedo = albedos[mode_wave_slot(i, kb, fan)].xyz;
+                path.albedo = albedos[wave_slot(i, kb, fan)].xyz;
             }
             path.depth += 1u;
             if path.depth >= shading.max_depth {

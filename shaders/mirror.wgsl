@@ -31,6 +31,7 @@ struct MirrorResult {
     color: vec4<f32>,    // colormap(c.x, c.y, c.z, words.z % 4)
     rgb: vec4<f32>,      // srgb_color(words.x)
     row: vec4<u32>,      // block_row(invocation) in x
+    patched: vec4<f32>,  // sample2_patch(pixel, params.width, dim, index) in xy
 }
 
 @group(1) @binding(0) var<storage, read> mirror_in: array<MirrorCase>;
@@ -57,5 +58,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     r.color = vec4(colormap(c.c.x, c.c.y, c.c.z, c.words.z % 4u), 0.0);
     r.rgb = vec4(srgb_color(c.words.x), 0.0);
     r.row = vec4(block_row(i), 0u, 0u, 0u);
+    r.patched = vec4(sample2_patch(c.words.y, params.width, c.words.z, c.words.w), 0.0, 0.0);
     mirror_out[i] = r;
 }

@@ -16,7 +16,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     let fan = shading.fan;
     var live = false;
     if j < params.batch_rays * fan {
-        let ik = mode_wave_ray(j, fan);
+        let ik = wave_ray(j, fan);
         let r = spawn_ray(paths[ik.x], ik.y);
         live = r.status == LIVE;
         rays[j] = ray_groups(r);

@@ -240,7 +240,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         if slot {
             ray_index = spread_slot(gid.x, slots);
             if FIRST == FIRST_SPAWN {
-                let ik = mode_wave_ray(ray_index, shading.fan);
+                let ik = wave_ray(ray_index, shading.fan);
                 r = spawn_ray(paths[ik.x], ik.y);
             } else {
                 r = camera_ray(ray_index);

@@ -65,6 +65,35 @@ fn sample2(pixel: u32, dim: u32, index: u32) -> vec2<f32> {
     return unit2(x, y);
 }
 
+// Point `index` of dimension pair `dim` as sample2 gives it, except that with Sobol' the index
+// shuffle and the top two base-2 digits of each coordinate (which of 4x4 strata of [0,1)^2 the
+// point lies in) are keyed by the pixel's 4x2 patch (x / 4, y / 2 of pixel = y * width + x), and
+// only the lower digits by the pixel: the k-th points of a patch's pixels share a stratum, so a
+// subgroup's k-th AO rays (a 4x2 patch in Z order, tiles.wgsl) leave in nearly one direction
+// from nearly one place and traverse alike. A nested scramble of a nested scramble, so each
+// pixel's points are still a scrambled (0,2)-sequence, as unbiased and as stratified as
+// sample2's; the patch's pixels' errors are correlated instead of independent. Mirrored by
+// mirror::sampling::sample2_patch.
+fn sample2_patch(pixel: u32, width: u32, dim: u32, index: u32) -> vec2<f32> {
+    if (params.flags & SAMPLER_INDEPENDENT) != 0u {
+        return sample2(pixel, dim, index);
+    }
+    let x0 = pixel % width;
+    let y0 = pixel / width;
+    let pair = hash(dim * 0x9e3779b9u + params.seed);
+    let key = hash(pixel ^ pair);
+    let group = hash(((y0 >> 1u) * width + (x0 >> 2u)) ^ pair ^ 0x5bd1e995u);
+    let i = owen(index, hash(group ^ 0x68bc21ebu));
+    let x = owen(reverseBits(i), hash(group ^ 0x02e5be93u));
+    let y = owen(sobol1(i), hash(group ^ 0x967a889bu));
+    return unit2(below_strata(x, hash(key ^ 0x02e5be93u)), below_strata(y, hash(key ^ 0x967a889bu)));
+}
+
+// x with its top two digits kept and the others scrambled by `seed` (a nested scramble of them).
+fn below_strata(x: u32, seed: u32) -> u32 {
+    return (x & 0xc0000000u) | (owen(x, seed) & 0x3fffffffu);
+}
+
 // Cosine-weighted direction about unit n from u in [0,1)^2, with the branchless orthonormal
 // basis of Duff et al. (JCGT 2017). Mirrored by mirror::sampling::cosine_dir.
 fn cosine_dir(n: vec3<f32>, u: vec2<f32>) -> vec3<f32> {

@@ -1,4 +1,4 @@
-// A wave of secondary rays: `shading.fan` ray slots per pixel slot (mode_wave_slot). Shadows:
+// A wave of secondary rays: `shading.fan` ray slots per pixel slot (tiles.wgsl, wave_slot). Shadows:
 // ray k goes to light k; ambient occlusion: ray k is the sample's k-th cosine-weighted direction;
 // path: ray 0 goes to the sun (when on), the last is the cosine-weighted bounce. Shadow and
 // occlusion rays stop at any hit. Rays not needed (dead path, light behind the surface) are
@@ -10,25 +10,6 @@
 #import sampling
 #import offset
 #import tiles
-
-// The ray slot of ray k of batch slot i in this mode's waves: `wave_slot` (by kind), except
-// ambient occlusion, whose rays of a pixel share their origin and differ only in direction: one
-// pixel's rays a subgroup (slot i * fan + k) measured as fast as or faster than ray k of
-// neighbouring pixels (docs/ARCHITECTURE.md, Shading modes).
-fn mode_wave_slot(i: u32, k: u32, fan: u32) -> u32 {
-    if MODE == MODE_AO {
-        return i * fan + k;
-    }
-    return wave_slot(i, k, fan);
-}
-
-// The batch slot and k of ray slot j of this mode's waves: mode_wave_slot's inverse.
-fn mode_wave_ray(j: u32, fan: u32) -> vec2<u32> {
-    if MODE == MODE_AO {
-        return vec2(j / fan, j % fan);
-    }
-    return wave_ray(j, fan);
-}
 
 fn spawn_origin(p: vec3<f32>, n: vec3<f32>, err: f32) -> vec3<f32> {
     if shading.offset_mode == 0u {
@@ -59,7 +40,7 @@ fn spawn_ray(path: Path, k: u32) -> RayState {
         }
         go = dot(dir, n) > 0.0;
     } else if MODE == MODE_AO {
-        let u = sample2(path.pixel, 1u, params.sample * shading.ao_rays + k);
+        let u = sample2_patch(path.pixel, params.width, 1u, params.sample * shading.ao_rays + k);
         dir = cosine_dir(n, u);
         tmax = shading.ao_distance;
     } else if MODE == MODE_PATH {

@@ -27,8 +27,8 @@ fn tile_pixel(i: u32) -> vec2<u32> {
 // The ray slot of ray k of batch slot i in a wave of `fan` rays a slot, by kind: tile by tile,
 // then k, then the slot's place in its tile (batches are whole tiles), so that a subgroup's lanes
 // trace the same ray k of neighbouring pixels (rays to the same light; a path's sun rays apart
-// from its bounce rays) rather than a mix of kinds. Ambient occlusion lays its waves out by pixel
-// instead (spawn.wgsl, mode_wave_slot).
+// from its bounce rays, an AO sample's k-th directions, which share a stratum across a 4x2 patch
+// of pixels: sampling.wgsl, sample2_patch) rather than a mix of kinds.
 fn wave_slot(i: u32, k: u32, fan: u32) -> u32 {
     let t = i / (TILE * TILE);
     return (t * fan + k) * (TILE * TILE) + i % (TILE * TILE);

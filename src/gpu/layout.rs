@@ -360,4 +360,6 @@ pub struct MirrorResult {
     pub rgb: [f32; 4],
     /// `block_row` of the case's index (x) in the table `run_mirror` was given.
     pub row: [u32; 4],
+    /// `sample2_patch` of the case's pixel, dimension and index, at `Params::width`.
+    pub patched: [f32; 4],
 }

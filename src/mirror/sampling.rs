@@ -58,6 +58,39 @@ pub fn sample2(sampler: Sampler, seed: u32, pixel: u32, dim: u32, index: u32) ->
     }
 }
 
+/// `sample2_patch`, bit for bit: `sample2`, except that with Sobol' the index shuffle and the
+/// top two base-2 digits of each coordinate are keyed by the 4x2 patch of pixels that `pixel`
+/// (`y * width + x`) lies in, the lower digits by the pixel: the k-th points of a patch's pixels
+/// share one of 4x4 strata of [0,1)^2, and each pixel's points stay a scrambled (0,2)-sequence.
+pub fn sample2_patch(
+    sampler: Sampler,
+    seed: u32,
+    pixel: u32,
+    width: u32,
+    dim: u32,
+    index: u32,
+) -> [f32; 2] {
+    if sampler == Sampler::Independent {
+        return sample2(sampler, seed, pixel, dim, index);
+    }
+    let (x0, y0) = (pixel % width, pixel / width);
+    let pair = hash(dim.wrapping_mul(0x9e37_79b9).wrapping_add(seed));
+    let key = hash(pixel ^ pair);
+    let group = hash(((y0 >> 1).wrapping_mul(width).wrapping_add(x0 >> 2)) ^ pair ^ 0x5bd1_e995);
+    let i = owen(index, hash(group ^ 0x68bc_21eb));
+    let x = owen(i.reverse_bits(), hash(group ^ 0x02e5_be93));
+    let y = owen(sobol1(i), hash(group ^ 0x967a_889b));
+    unit2(
+        below_strata(x, hash(key ^ 0x02e5_be93)),
+        below_strata(y, hash(key ^ 0x967a_889b)),
+    )
+}
+
+/// `below_strata`: `x` with its top two digits kept and the others scrambled by `seed`.
+fn below_strata(x: u32, seed: u32) -> u32 {
+    (x & 0xc000_0000) | (owen(x, seed) & 0x3fff_ffff)
+}
+
 /// `cosine_dir`: a cosine-weighted direction about unit `n` from `u` in [0,1)^2, with the
 /// branchless orthonormal basis of Duff et al. (JCGT 2017).
 pub fn cosine_dir(n: [f32; 3], u: [f32; 2]) -> [f32; 3] {
@@ -153,6 +186,59 @@ mod tests {
             cells.iter().any(|&c| c > 1),
             "independent points are not a net"
         );
+    }
+
+    /// Which of the 4x4 strata of [0,1)^2 a point lies in.
+    fn stratum([x, y]: [f32; 2]) -> (u32, u32) {
+        ((x * 4.0) as u32, (y * 4.0) as u32)
+    }
+
+    #[test]
+    fn patch_samples_share_strata_across_a_patch_and_stay_nets_per_pixel() {
+        let width = 37;
+        let at = |x: u32, y: u32| y * width + x;
+        let point = |pixel, i| sample2_patch(Sampler::Sobol, 7, pixel, width, 1, i);
+        // Each pixel's 64 first points are a (0,6,2)-net, as sample2's are.
+        for pixel in [at(0, 0), at(5, 3), at(36, 9)] {
+            for a in 0..=6 {
+                let (nx, ny) = (1usize << a, 1usize << (6 - a));
+                let mut cells = vec![0u32; 64];
+                for i in 0..64 {
+                    let [x, y] = point(pixel, i);
+                    assert!((0.0..1.0).contains(&x) && (0.0..1.0).contains(&y));
+                    cells[(y * ny as f32) as usize * nx + (x * nx as f32) as usize] += 1;
+                }
+                assert!(cells.iter().all(|&c| c == 1), "pixel {pixel}, {nx}x{ny}");
+            }
+        }
+        // Point i of every pixel of the patch at x 4..8, y 2..4 is in one stratum, not at one
+        // place; the patches beside it take other strata for some i.
+        let mut differs = [0u32; 4];
+        for i in 0..256 {
+            let first = point(at(4, 2), i);
+            for (x, y) in (4..8).flat_map(|x| (2..4).map(move |y| (x, y))) {
+                let p = point(at(x, y), i);
+                assert_eq!(stratum(p), stratum(first), "point {i} of pixel ({x}, {y})");
+                assert!(
+                    (x, y) == (4, 2) || p != first,
+                    "point {i} of ({x}, {y}) repeats (4, 2)'s"
+                );
+            }
+            for (n, (x, y)) in [(3, 2), (8, 2), (4, 1), (4, 4)].into_iter().enumerate() {
+                differs[n] += u32::from(stratum(point(at(x, y), i)) != stratum(first));
+            }
+        }
+        assert!(
+            differs.iter().all(|&d| d > 128),
+            "neighbouring patches: {differs:?}"
+        );
+        // Independent samples are sample2's.
+        for i in 0..64 {
+            assert_eq!(
+                sample2_patch(Sampler::Independent, 7, at(5, 5), width, 1, i),
+                sample2(Sampler::Independent, 7, at(5, 5), 1, i)
+            );
+        }
     }
 
     #[test]

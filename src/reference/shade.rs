@@ -3,7 +3,7 @@
 //! (`crate::mirror`), so GPU and CPU shoot the same secondary rays up to float rounding.
 
 use crate::mirror::offset::{offset_distance, offset_ray};
-use crate::mirror::sampling::{cosine_dir, sample2};
+use crate::mirror::sampling::{cosine_dir, sample2_patch};
 use crate::reference::{Ray, Reference};
 use crate::scene::{CameraBasis, Model};
 use crate::shading::{Light, Mode, Offset, Shading};
@@ -67,7 +67,14 @@ pub fn reference_image(
                 let n_rays = shading.ao_rays;
                 let open = (0..n_rays)
                     .filter(|&k| {
-                        let u = sample2(shading.sampler, shading.seed, i, 1, sample * n_rays + k);
+                        let u = sample2_patch(
+                            shading.sampler,
+                            shading.seed,
+                            i,
+                            w,
+                            1,
+                            sample * n_rays + k,
+                        );
                         visible(cosine_dir(n, u), shading.ao_distance)
                     })
                     .count();

@@ -284,7 +284,7 @@ fn host_structs_match_naga_layouts() {
     sized(w, size_of::<MirrorCase>());
     let w = same_layout!(MirrorResult, "MirrorResult", {
         "offset" => offset, "dir" => dir, "sample" => sample, "words" => words, "lo" => lo,
-        "hi" => hi, "color" => color, "rgb" => rgb, "row" => row,
+        "hi" => hi, "color" => color, "rgb" => rgb, "row" => row, "patched" => patched,
     });
     sized(w, size_of::<MirrorResult>());
 }

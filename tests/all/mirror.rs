@@ -9,7 +9,7 @@ use dcrt::gpu::layout::{MirrorCase, Params, flags};
 use dcrt::gpu::probe::run_mirror;
 use dcrt::mirror::colormap::{bin, colormap, srgb_color};
 use dcrt::mirror::offset::offset_ray_with;
-use dcrt::mirror::sampling::{cosine_dir, hash, sample2};
+use dcrt::mirror::sampling::{cosine_dir, hash, sample2, sample2_patch};
 use dcrt::mirror::tiles::{TILE, Tiling, tile_pixel};
 use dcrt::shading::Sampler;
 
@@ -76,6 +76,8 @@ fn cases(n: usize) -> Vec<MirrorCase> {
 fn params() -> Params {
     Params {
         seed: 0xdead_beef,
+        // sample2_patch's row length: the case's pixels are any u32.
+        width: 1000,
         // A rectangle 3 x 30 tiles in bands 2 wide: the slots run into the second band, which
         // goes bottom to top.
         first_tile: 5,
@@ -115,6 +117,12 @@ fn integer_twins_match_the_gpu_bit_for_bit() {
                 [r.sample[0].to_bits(), r.sample[1].to_bits()],
                 s.map(f32::to_bits),
                 "sample2 {sampler:?}, case {i}"
+            );
+            let s = sample2_patch(sampler, p.seed, c.words[1], p.width, c.words[2], c.words[3]);
+            assert_eq!(
+                [r.patched[0].to_bits(), r.patched[1].to_bits()],
+                s.map(f32::to_bits),
+                "sample2_patch {sampler:?}, case {i}"
             );
             let tiling = Tiling {
                 tiles_x: p.tiles_x,
