@@ -14,7 +14,8 @@
 // sy = 1 - 2 (y + 0.5) / height, in f32, as dcrt's raygen makes it. Each thread takes 8x8 tiles
 // from a shared counter and traces them as eight rtcIntersect8 packets, one per tile row. AO:
 // from each hit, RAYS cosine-weighted occlusion rays about the normal facing the camera, up to
-// DISTANCE, as rtcOccluded8 packets of the row's pixels' k-th rays. Path: DEPTH waves from each
+// DISTANCE, as rtcOccluded8 packets of the row's pixels' k-th rays, which share a stratum as
+// dcrt's patches' do. Path: DEPTH waves from each
 // live vertex, a sun ray (rtcOccluded8, when the sun is above the surface) and a cosine-weighted
 // bounce (rtcIntersect8), a path ending when its bounce misses (dcrt's bench plays no Russian
 // roulette either: its depth is the bounce roulette starts at). Directions
@@ -55,10 +56,19 @@ static uint32_t hash(uint32_t x) {
 
 static float unit(uint32_t x) { return (float)(x >> 8) * (1.0f / 16777216.0f); }
 
-// Cosine-weighted direction about unit n for (pixel, k), with Duff et al.'s basis.
-static void cosine_dir(const float n[3], uint32_t pixel, uint32_t k, float out[3]) {
+// Cosine-weighted direction about unit n for (pixel, k), with Duff et al.'s basis. With a group
+// other than NO_GROUP, the point in [0,1)^2 lies in one of 4x4 strata chosen by (group, k), as
+// dcrt's AO rays of a 4x2 pixel patch share their k-th stratum: a packet's k-th AO rays leave
+// as alike as a subgroup's in dcrt.
+#define NO_GROUP 0xffffffffu
+static void cosine_dir(const float n[3], uint32_t pixel, uint32_t group, uint32_t k, float out[3]) {
     uint32_t h = hash(pixel * 0x9e3779b9u ^ hash(k + 0x632be5abu));
     float u1 = unit(hash(h ^ 0x2c1b3c6du)), u2 = unit(hash(h ^ 0x297a2d39u));
+    if (group != NO_GROUP) {
+        uint32_t g = hash(group * 0x85ebca6bu ^ hash(k + 0x632be5abu));
+        u1 = ((float)(g & 3u) + u1) * 0.25f;
+        u2 = ((float)((g >> 2) & 3u) + u2) * 0.25f;
+    }
     float s = n[2] >= 0.0f ? 1.0f : -1.0f;
     float a = -1.0f / (s + n[2]);
     float b = n[0] * n[1] * a;
@@ -126,7 +136,7 @@ static unsigned long long secondary(struct RTCIntersectContext *ctx, struct RTCR
                 struct RTCRay8 r __attribute__((aligned(32)));
                 for (int i = 0; i < 8; i++) {
                     float d[3] = {0.0f, 0.0f, 1.0f};
-                    if (live[i]) cosine_dir(n[i], px[i], k, d);
+                    if (live[i]) cosine_dir(n[i], px[i], px[0], k, d);
                     set_ray(&r, i, live[i] ? p[i] : org, d, ao_distance);
                 }
                 rtcOccluded8(live, scene, ctx, &r);
@@ -147,7 +157,7 @@ static unsigned long long secondary(struct RTCIntersectContext *ctx, struct RTCR
         }
         for (int i = 0; i < 8; i++) {
             float d[3] = {0.0f, 0.0f, 1.0f};
-            if (live[i]) cosine_dir(n[i], px[i], 1000u + w, d);
+            if (live[i]) cosine_dir(n[i], px[i], NO_GROUP, 1000u + w, d);
             set_ray(&rh->ray, i, live[i] ? p[i] : org, d, INFINITY);
             rh->hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
             rh->hit.primID[i] = RTC_INVALID_GEOMETRY_ID;

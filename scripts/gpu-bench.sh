@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# dcrt's speed on a real GPU, every figure the speed issue asks for in one run:
+# dcrt's speed on a real GPU, the figures of docs/benchmarks.md in one run:
 #
 # 1. rays: per scene (`rm`, `assembly`), shading mode (cast, ao, path) and block store (texture,
 #    buffer) Mrays/s, steps a ray, nodes a node block and the share of busy lanes (`bench rays`);
@@ -19,7 +19,9 @@
 #   DC_FRAMES     frames of each dc orbit, the first cold (default 4)
 #   PARTS         which parts run (default "rays dc")
 #   OUT           a folder: each bench's JSON and the printed tables are also written there
-#   LIMIT         seconds any one bench may run before it is stopped (default 300)
+#   LIMIT         seconds any one bench may run before it is stopped (default 300); a bench that
+#                 fails or is stopped is named on stderr, the others still run, and the script
+#                 exits 1
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 bin="${1:-}"
@@ -44,6 +46,7 @@ out="${OUT:-}"
 [ -n "$out" ] && mkdir -p "$out"
 adapter=()
 [ -n "${ADAPTER:-}" ] && adapter=(--adapter "$ADAPTER")
+failed=0
 
 # Saves stdin as $out/$1 when OUT is given, and passes it on.
 keep() {
@@ -65,7 +68,11 @@ for part in $parts; do
     rays)
         for gen in rm assembly; do
             json="$(timeout "$limit" "$bin" bench rays --generator "$gen" --triangles "$tris" \
-                --width "$size" --height "$size" --modes "$modes" --stores --json "${adapter[@]}" "$@")"
+                --width "$size" --height "$size" --modes "$modes" --stores --json "${adapter[@]}" "$@")" || {
+                echo "gpu-bench: bench rays on $gen failed or ran past ${limit}s (exit $?)" >&2
+                failed=1
+                continue
+            }
             [ -n "$out" ] && echo "$json" >"$out/rays-$gen.json"
             # The JSON is printed pretty, one key a line: the figures without jq or python.
             echo "$json" | awk -v gen="$gen" '
@@ -85,12 +92,16 @@ for part in $parts; do
         for s in $dc_sizes; do
             for step in 3 120; do
                 echo "dc        rm $dc_tris triangles, ${s}x$s, rank 0 of 8, root replicated, ${step} degrees a frame"
-                timeout "$limit" "$bin" bench dc --generator rm --triangles "$dc_tris" --width "$s" \
+                if ! timeout "$limit" "$bin" bench dc --generator rm --triangles "$dc_tris" --width "$s" \
                     --height "$s" --caches 1/8,1/32 --cache-maps ize,demarle,lru \
                     --replicate-blocks root --frames "$dc_frames" --step "$step" -q "${adapter[@]}" |
-                    keep "dc-$s-$step.txt"
+                    keep "dc-$s-$step.txt"; then
+                    echo "gpu-bench: bench dc at ${s}x$s, $step degrees failed or ran past ${limit}s" >&2
+                    failed=1
+                fi
             done
         done
         ;;
     esac
 done
+exit $failed
