@@ -224,59 +224,43 @@ mod tests {
 
     #[test]
     fn launchers_are_recognised_by_their_variables() {
-        let env = |pairs: &'static [(&'static str, &'static str)]| {
-            move |k: &str| {
-                pairs
-                    .iter()
-                    .find(|(n, _)| *n == k)
-                    .map(|(_, v)| v.to_string())
-            }
+        let env = |pairs: &[(&str, &str)]| {
+            let pairs: Vec<(String, String)> = pairs
+                .iter()
+                .map(|(n, v)| (n.to_string(), v.to_string()))
+                .collect();
+            move |k: &str| pairs.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone())
         };
+        // Each launcher's size and rank variable alone, as launchers write them (stray white
+        // space included); what is not a number is no size.
+        let cases: [(&[&str], &str, &str, Option<u32>); 14] = [
+            (SIZE_VARS, "OMPI_COMM_WORLD_SIZE", "4", Some(4)),
+            (SIZE_VARS, "PMI_SIZE", "3", Some(3)),
+            (SIZE_VARS, "PMIX_SIZE", " 6\n", Some(6)),
+            (SIZE_VARS, "MV2_COMM_WORLD_SIZE", "2", Some(2)),
+            (SIZE_VARS, "SLURM_STEP_NUM_TASKS", "8", Some(8)),
+            (SIZE_VARS, "SLURM_STEP_NUM_TASKS", "x", None),
+            (RANK_VARS, "OMPI_COMM_WORLD_RANK", "0", Some(0)),
+            (RANK_VARS, "PMI_RANK", "2", Some(2)),
+            (RANK_VARS, "PMIX_RANK", "5\n", Some(5)),
+            (RANK_VARS, "MV2_COMM_WORLD_RANK", "1", Some(1)),
+            (RANK_VARS, "SLURM_PROCID", "7", Some(7)),
+            (RANK_VARS, "SLURM_PROCID", "", None),
+            (SIZE_VARS, "OMPI_COMM_WORLD_RANK", "1", None),
+            (RANK_VARS, "OMPI_COMM_WORLD_SIZE", "4", None),
+        ];
+        for (vars, name, value, want) in cases {
+            assert_eq!(
+                first_number(vars, env(&[(name, value)])),
+                want,
+                "{name}={value:?}"
+            );
+        }
         assert_eq!(first_number(SIZE_VARS, env(&[])), None);
-        assert_eq!(
-            first_number(SIZE_VARS, env(&[("OMPI_COMM_WORLD_SIZE", "4")])),
-            Some(4)
-        );
-        assert_eq!(first_number(SIZE_VARS, env(&[("PMI_SIZE", "3")])), Some(3));
-        assert_eq!(
-            first_number(SIZE_VARS, env(&[("PMIX_SIZE", " 6\n")])),
-            Some(6)
-        );
-        assert_eq!(
-            first_number(SIZE_VARS, env(&[("MV2_COMM_WORLD_SIZE", "2")])),
-            Some(2)
-        );
-        assert_eq!(
-            first_number(SIZE_VARS, env(&[("SLURM_STEP_NUM_TASKS", "8")])),
-            Some(8)
-        );
-        assert_eq!(
-            first_number(SIZE_VARS, env(&[("SLURM_STEP_NUM_TASKS", "x")])),
-            None
-        );
-        // Open MPI's own variable first.
+        assert_eq!(first_number(RANK_VARS, env(&[])), None);
+        // Open MPI's own variables first.
         let both = env(&[("SLURM_STEP_NUM_TASKS", "8"), ("OMPI_COMM_WORLD_SIZE", "4")]);
         assert_eq!(first_number(SIZE_VARS, both), Some(4));
-        // And this process's rank.
-        assert_eq!(first_number(RANK_VARS, env(&[])), None);
-        assert_eq!(
-            first_number(RANK_VARS, env(&[("OMPI_COMM_WORLD_RANK", "0")])),
-            Some(0)
-        );
-        assert_eq!(first_number(RANK_VARS, env(&[("PMI_RANK", "2")])), Some(2));
-        assert_eq!(
-            first_number(RANK_VARS, env(&[("PMIX_RANK", "5\n")])),
-            Some(5)
-        );
-        assert_eq!(
-            first_number(RANK_VARS, env(&[("MV2_COMM_WORLD_RANK", "1")])),
-            Some(1)
-        );
-        assert_eq!(
-            first_number(RANK_VARS, env(&[("SLURM_PROCID", "7")])),
-            Some(7)
-        );
-        assert_eq!(first_number(RANK_VARS, env(&[("SLURM_PROCID", "")])), None);
         let both = env(&[("SLURM_PROCID", "3"), ("OMPI_COMM_WORLD_RANK", "1")]);
         assert_eq!(first_number(RANK_VARS, both), Some(1));
     }
