@@ -26,10 +26,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i >= params.batch_rays {
         return;
     }
-    var path = paths[i];
-    if path.alive == 0u {
+    // A dead path's slot is left as it is: its flag alone is loaded (the spawn kernel did not
+    // store its rays).
+    if paths[i].alive == 0u {
         return;
     }
+    var path = paths[i];
     let fan = shading.fan;
     if MODE == MODE_SHADOWS {
         for (var k = 0u; k < fan; k++) {

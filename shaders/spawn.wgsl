@@ -17,9 +17,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var live = false;
     if j < params.batch_rays * fan {
         let ik = wave_ray(j, fan);
-        let r = spawn_ray(paths[ik.x], ik.y);
-        live = r.status == LIVE;
-        rays[j] = ray_groups(r);
+        // A dead path's slot gets only the group with its status (OUTSIDE: the albedo kernel
+        // skips it; gather skips dead paths), which makes a wave of few live paths cheap (a CPU
+        // driver loads and stores lane by lane).
+        if paths[ik.x].alive != 0u {
+            let r = spawn_ray(paths[ik.x], ik.y);
+            live = r.status == LIVE;
+            rays[j] = ray_groups(r);
+        } else {
+            rays[j].g[2] = vec4(0u, OUTSIDE, 0u, 0u);
+        }
     }
     append_live(live, lid, j);
 }

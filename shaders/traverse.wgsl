@@ -52,6 +52,11 @@ struct Stats {
     // lanes that did work.
     subgroup_steps: atomic<u32>,
     subgroup_size: atomic<u32>,
+    // Rays that do not stop at any hit and found one (counted only in path tracing, the mode
+    // whose waves follow secondary rays): without any, no path goes on and the next wave is not
+    // traced.
+    closest_hits: atomic<u32>,
+    pad: u32,
 }
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 // FIRST_CAMERA with first_round_shades(): the pixels of the rays that end in the round.
@@ -235,13 +240,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         slots *= shading.fan;
     }
     let slot = FIRST != 0u && gid.x < slots;
+    // Whether the first round stores its slot's whole state: a dead path's slots (FIRST_SPAWN)
+    // get only the group with their status, OUTSIDE (as the spawn kernel's).
+    var whole = slot;
     var entered = 0u;
     if FIRST != 0u {
         if slot {
             ray_index = spread_slot(gid.x, slots);
             if FIRST == FIRST_SPAWN {
                 let ik = wave_ray(ray_index, shading.fan);
-                r = spawn_ray(paths[ik.x], ik.y);
+                whole = paths[ik.x].alive != 0u;
+                if whole {
+                    r = spawn_ray(paths[ik.x], ik.y);
+                }
             } else {
                 r = camera_ray(ray_index);
             }
@@ -579,15 +590,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         again = r.status == LIVE;
         counts = vec4(iters, tests, visits, entries);
-        // Suspended in the low 16 bits, overflowed above them (a subgroup sums at most 128 of
-        // each): one sum instead of two.
-        let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 16u);
+        // Suspended in bits 0-9, overflowed in 10-19, closest hits in 20-29 (a subgroup sums at
+        // most 128 of each): one sum instead of three.
+        let closest_hit = closest.found && (r.flags & ANY_HIT) == 0u;
+        let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 10u) | (u32(closest_hit) << 20u);
         more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
     }
     // The first round's slot, traced or not: its pixel when the ray has ended and the round
     // shades, else its whole state (no earlier kernel stored any).
     if slot {
-        if FIRST == FIRST_CAMERA && first_round_shades() && r.status != LIVE {
+        if !whole {
+            rays[ray_index].g[2] = ray_groups(r).g[2];
+        } else if FIRST == FIRST_CAMERA && first_round_shades() && r.status != LIVE {
             var before = Pixel();
             if (params.flags & FIRST_SAMPLE) == 0u {
                 before = pixels[ray_index];
@@ -619,7 +633,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         }
         atomicAdd(&stats.steps, sub_counts.x);
         atomicAdd(&stats.tri_tests, sub_counts.y);
-        atomicAdd(&stats.overflows, sub_more.y >> 16u);
+        atomicAdd(&stats.overflows, (sub_more.y >> 10u) & 0x3ffu);
+        if MODE == MODE_PATH {
+            atomicAdd(&stats.closest_hits, sub_more.y >> 20u);
+        }
         if BLOCK_COUNTS {
             atomicAdd(&stats.node_visits, sub_counts.z);
             atomicAdd(&stats.block_entries, sub_counts.w);
@@ -628,7 +645,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             atomicMax(&stats.subgroup_size, sg_size);
         }
         if DC {
-            atomicAdd(&stats.suspended, sub_more.y & 0xffffu);
+            atomicAdd(&stats.suspended, sub_more.y & 0x3ffu);
             atomicAdd(&stats.hits, sub_more.z);
             atomicAdd(&stats.misses, sub_more.w);
         }

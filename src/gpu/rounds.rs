@@ -22,6 +22,9 @@ pub(super) struct Traced {
     pub started: u32,
     /// Of primary rays, those the first round left live (`RoundReadback::opened`).
     pub opened: Option<u32>,
+    /// Rays that do not stop at any hit and found one (`Stats::closest_hits`), counted in path
+    /// tracing only (else 0): without any, no path goes on past these rays.
+    pub closest_hits: u32,
 }
 
 /// What starts a batch's traversal rounds.
@@ -167,6 +170,7 @@ impl Tracer<'_> {
             let traced = *traced.get_or_insert(Traced {
                 started: s.started,
                 opened: (opening == Some(Gen::Primary)).then_some(r.opened),
+                closest_hits: 0,
             });
             let gpu_ms = self.round_gpu_ms(&r, stats);
             self.check_overflows(&s)?;
@@ -194,7 +198,12 @@ impl Tracer<'_> {
             }
             if r.counter.count == 0 {
                 add_batch_stats(stats, &s, live_rounds);
-                return Ok(traced);
+                // The batch's stats count from its start: the last read-back has them all.
+                let closest_hits = s.closest_hits;
+                return Ok(Traced {
+                    closest_hits,
+                    ..traced
+                });
             }
             if self.dc.is_none() {
                 per_check = (per_check * 2).min(16);

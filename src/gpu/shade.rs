@@ -56,7 +56,14 @@ impl Tracer<'_> {
             if !self.all_shaded(traced.opened) {
                 self.run(&self.kernels.shade, &self.bound.shade);
             }
+            // A path goes on only from a hit: when the rays before a wave found none (a batch
+            // of sky, bounces that all left the model), the wave and those after it are not
+            // traced. Only path tracing counts the hits (`Stats::closest_hits`).
+            let mut closest_hits = traced.closest_hits;
             for wave in 0..waves {
+                if sh.mode == Mode::Path && closest_hits == 0 {
+                    break;
+                }
                 let t = Instant::now();
                 self.params.albedo_stride = fan;
                 let gen_ = if wave < self.settings.spawned_waves_from {
@@ -64,7 +71,9 @@ impl Tracer<'_> {
                 } else {
                     Gen::Spawned { fan }
                 };
-                let live = self.traverse_batch(stats, gen_)?.started;
+                let traced = self.traverse_batch(stats, gen_)?;
+                let live = traced.started;
+                closest_hits = traced.closest_hits;
                 stats.trace_seconds += t.elapsed().as_secs_f64();
                 // Only path tracing shades the hits of secondary rays.
                 if sh.mode == Mode::Path {

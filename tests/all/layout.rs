@@ -253,7 +253,7 @@ fn host_structs_match_naga_layouts() {
         "suspended" => suspended, "started" => started, "hits" => hits, "misses" => misses,
         "node_visits" => node_visits, "block_entries" => block_entries,
         "tri_block_entries" => tri_block_entries, "subgroup_steps" => subgroup_steps,
-        "subgroup_size" => subgroup_size,
+        "subgroup_size" => subgroup_size, "closest_hits" => closest_hits, "pad" => pad,
     });
     sized(w, size_of::<Stats>());
     // The fault list follows the header.

@@ -198,6 +198,43 @@ fn path_of_a_lone_convex_object_is_its_albedo_under_sky_and_sun() {
     );
 }
 
+/// A path goes on only from a hit, so a wave follows only rays that found one
+/// (`Stats::closest_hits`). Every bounce off a convex object leaves it: at a depth limit of 8
+/// one wave is traced, in the rounds it takes at a limit of 1, with the same image. A view of
+/// the sky alone traces no wave at all: the rounds of its camera rays, as in cast mode.
+#[test]
+fn path_waves_follow_only_rays_that_found_a_hit() {
+    let gpu = gpu();
+    let p = prepare(sphere(24, 48, 0.0));
+    let path = |max_depth| Settings {
+        shading: Shading {
+            mode: Mode::Path,
+            max_depth,
+            ..Shading::default()
+        },
+        ..Settings::default()
+    };
+    let (one, s1) = render(&gpu, &p, &camera(), 32, 32, path(1));
+    let (eight, s8) = render(&gpu, &p, &camera(), 32, 32, path(8));
+    assert_same_pixels(&one, &eight, "depth limit 1 against 8");
+    assert!(s1.secondary_rays > 0, "the object's paths trace a wave");
+    assert_eq!(s8.secondary_rays, s1.secondary_rays, "secondary rays");
+    assert_eq!(s8.rounds, s1.rounds, "rounds at depth limits 8 and 1");
+    let away = Camera {
+        focal_point: [0.3, -8.0, 1.0],
+        ..camera()
+    };
+    let (sky, s) = render(&gpu, &p, &away, 32, 32, path(8));
+    assert!(sky.pixels.iter().all(is_miss), "the view holds only sky");
+    let cast = Settings::default();
+    let (_, c) = render(&gpu, &p, &away, 32, 32, cast);
+    assert_eq!(s.secondary_rays, 0, "secondary rays from the sky");
+    assert_eq!(
+        s.rounds, c.rounds,
+        "rounds of a view of sky, path against cast"
+    );
+}
+
 /// GPU against the CPU reference for one mode on a small rm isosurface.
 fn against_reference(sh: Shading) {
     let (w, h) = (48, 40);
