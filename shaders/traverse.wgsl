@@ -52,9 +52,8 @@ struct Stats {
     // lanes that did work.
     subgroup_steps: atomic<u32>,
     subgroup_size: atomic<u32>,
-    // Rays that do not stop at any hit and found one (counted only in path tracing, the mode
-    // whose waves follow secondary rays): without any, no path goes on and the next wave is not
-    // traced.
+    // Rays that do not stop at any hit and found one (counted in modes with secondary rays):
+    // without any, no path goes on and the next wave is not traced.
     closest_hits: atomic<u32>,
     pad: u32,
 }
@@ -634,7 +633,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         atomicAdd(&stats.steps, sub_counts.x);
         atomicAdd(&stats.tri_tests, sub_counts.y);
         atomicAdd(&stats.overflows, (sub_more.y >> 10u) & 0x3ffu);
-        if MODE == MODE_PATH {
+        if MODE != MODE_CAST {
             atomicAdd(&stats.closest_hits, sub_more.y >> 20u);
         }
         if BLOCK_COUNTS {

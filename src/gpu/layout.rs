@@ -215,8 +215,8 @@ pub struct Stats {
     /// subgroup size (`FrameStats::lane_steps`).
     pub subgroup_steps: u32,
     pub subgroup_size: u32,
-    /// Rays that do not stop at any hit and found one, counted in path tracing only: when a
-    /// batch's rays found none, no path goes on (`rounds::Traced::closest_hits`).
+    /// Rays that do not stop at any hit and found one, counted in modes with secondary rays:
+    /// when a batch's rays found none, no path goes on (`rounds::Traced::closest_hits`).
     pub closest_hits: u32,
     pub pad: u32,
 }

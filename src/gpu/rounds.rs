@@ -22,8 +22,8 @@ pub(super) struct Traced {
     pub started: u32,
     /// Of primary rays, those the first round left live (`RoundReadback::opened`).
     pub opened: Option<u32>,
-    /// Rays that do not stop at any hit and found one (`Stats::closest_hits`), counted in path
-    /// tracing only (else 0): without any, no path goes on past these rays.
+    /// Rays that do not stop at any hit and found one (`Stats::closest_hits`), counted in modes
+    /// with secondary rays (0 in `cast`): without any, no path goes on past these rays.
     pub closest_hits: u32,
 }
 

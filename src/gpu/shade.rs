@@ -58,10 +58,10 @@ impl Tracer<'_> {
             }
             // A path goes on only from a hit: when the rays before a wave found none (a batch
             // of sky, bounces that all left the model), the wave and those after it are not
-            // traced. Only path tracing counts the hits (`Stats::closest_hits`).
+            // traced (`Stats::closest_hits`).
             let mut closest_hits = traced.closest_hits;
             for wave in 0..waves {
-                if sh.mode == Mode::Path && closest_hits == 0 {
+                if closest_hits == 0 {
                     break;
                 }
                 let t = Instant::now();

@@ -201,7 +201,8 @@ fn path_of_a_lone_convex_object_is_its_albedo_under_sky_and_sun() {
 /// A path goes on only from a hit, so a wave follows only rays that found one
 /// (`Stats::closest_hits`). Every bounce off a convex object leaves it: at a depth limit of 8
 /// one wave is traced, in the rounds it takes at a limit of 1, with the same image. A view of
-/// the sky alone traces no wave at all: the rounds of its camera rays, as in cast mode.
+/// the sky alone traces no wave at all, in path tracing or ambient occlusion: the rounds of its
+/// camera rays, as in cast mode.
 #[test]
 fn path_waves_follow_only_rays_that_found_a_hit() {
     let gpu = gpu();
@@ -224,15 +225,26 @@ fn path_waves_follow_only_rays_that_found_a_hit() {
         focal_point: [0.3, -8.0, 1.0],
         ..camera()
     };
-    let (sky, s) = render(&gpu, &p, &away, 32, 32, path(8));
-    assert!(sky.pixels.iter().all(is_miss), "the view holds only sky");
-    let cast = Settings::default();
-    let (_, c) = render(&gpu, &p, &away, 32, 32, cast);
-    assert_eq!(s.secondary_rays, 0, "secondary rays from the sky");
-    assert_eq!(
-        s.rounds, c.rounds,
-        "rounds of a view of sky, path against cast"
-    );
+    let (_, cast) = render(&gpu, &p, &away, 32, 32, Settings::default());
+    let ao = Settings {
+        shading: Shading {
+            mode: Mode::Ao,
+            ..Shading::default()
+        },
+        ..Settings::default()
+    };
+    for (what, settings) in [("path", path(8)), ("ao", ao)] {
+        let (sky, s) = render(&gpu, &p, &away, 32, 32, settings);
+        assert!(
+            sky.pixels.iter().all(is_miss),
+            "{what}: the view holds only sky"
+        );
+        assert_eq!(s.secondary_rays, 0, "{what}: secondary rays from the sky");
+        assert_eq!(
+            s.rounds, cast.rounds,
+            "{what}: rounds of a view of sky against cast"
+        );
+    }
 }
 
 /// GPU against the CPU reference for one mode on a small rm isosurface.
