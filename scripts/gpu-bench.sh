@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # dcrt's speed on a real GPU, the figures of docs/benchmarks.md in one run:
 #
-# 1. rays: per scene (`rm`, `assembly`), shading mode (cast, ao, path) and block store (texture,
-#    buffer) Mrays/s, steps a ray, nodes a node block and the share of busy lanes (`bench rays`);
+# 1. rays: per scene (`rm`, `assembly`), BVH node cost (3 and 1), shading mode (cast, ao, path)
+#    and block store (texture, buffer) Mrays/s, steps a ray, nodes a node block and the share of
+#    busy lanes (`bench rays`);
 # 2. dc: the distributed cache's table (`bench dc`: `rm`, rank 0 of 8 virtual ranks, the root
 #    block replicated, caches 1/8 and 1/32, every mapping) at each size in DC_SIZES, for a
 #    camera turning 3 degrees a frame (a user's) and 120 (the bench's default orbit).
@@ -15,6 +16,7 @@
 #   ADAPTER       part of the adapter's name (default: the best GPU wgpu finds)
 #   TRIANGLES     triangles of the rays scenes (default 1000000); SIZE their image side (1024)
 #   MODES         shading modes of the rays part (default cast,ao,path)
+#   NODE_COSTS    the BVH node costs the rays part builds with, side by side (default 3,1)
 #   DC_TRIANGLES  triangles of the dc scene (default 677000); DC_SIZES its image sides ("512 1024")
 #   DC_FRAMES     frames of each dc orbit, the first cold (default 4)
 #   PARTS         which parts run (default "rays dc")
@@ -37,6 +39,7 @@ fi
 tris="${TRIANGLES:-1000000}"
 size="${SIZE:-1024}"
 modes="${MODES:-cast,ao,path}"
+node_costs="${NODE_COSTS:-3,1}"
 dc_tris="${DC_TRIANGLES:-677000}"
 dc_sizes="${DC_SIZES:-512 1024}"
 dc_frames="${DC_FRAMES:-4}"
@@ -68,7 +71,8 @@ for part in $parts; do
     rays)
         for gen in rm assembly; do
             json="$(timeout "$limit" "$bin" bench rays --generator "$gen" --triangles "$tris" \
-                --width "$size" --height "$size" --modes "$modes" --stores --json "${adapter[@]}" "$@")" || {
+                --width "$size" --height "$size" --modes "$modes" --stores \
+                --bvh-node-costs "$node_costs" --json "${adapter[@]}" "$@")" || {
                 echo "gpu-bench: bench rays on $gen failed or ran past ${limit}s (exit $?)" >&2
                 failed=1
                 continue
@@ -77,6 +81,7 @@ for part in $parts; do
             # The JSON is printed pretty, one key a line: the figures without jq or python.
             echo "$json" | awk -v gen="$gen" '
                 /"adapter":/ { sub(/^[^:]*: /, ""); gsub(/^"|",?$/, ""); printf "adapter   %s\n", $0 }
+                /"node_cost":/ { gsub(/,/, "", $2); cost = $2 }
                 /"store":/ { gsub(/[",]/, "", $2); store = $2 }
                 /"mode":/ { gsub(/[",]/, "", $2); mode = $2 }
                 /"mrays_per_s":/ && store != "" { gsub(/,/, "", $2); m = $2 }
@@ -84,7 +89,7 @@ for part in $parts; do
                 /"nodes_per_node_block":/ && store != "" { gsub(/,/, "", $2); n = $2 }
                 /"lane_use":/ && store != "" { gsub(/,/, "", $2); l = $2 }
                 /"shade_share":/ && store != "" {
-                    printf "%-9s %-8s %-7s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block %5.1f%% lanes busy\n", gen, store, mode, m, s, n, 100 * l
+                    printf "%-9s node cost %-4g %-8s %-7s %10.3f Mrays/s %8.1f steps/ray %6.2f nodes/block %5.1f%% lanes busy\n", gen, cost, store, mode, m, s, n, 100 * l
                 }' | keep "rays-$gen.txt"
         done
         ;;

@@ -434,7 +434,7 @@ impl Joined {
 mod tests {
     use super::*;
     use crate::bvh::layout::tests::{check_nodes, check_treelets, soup, treelet_ranges};
-    use crate::bvh::{Built, Bvh, Preset, triangle_box};
+    use crate::bvh::{Build, Built, Bvh, Preset, triangle_box};
     use crate::scene::Model;
 
     /// `model` cut into `parts` slabs along x (as a partition would), each built with the top
@@ -477,7 +477,7 @@ mod tests {
                     .collect();
                 (
                     groups[g].clone(),
-                    Built::over(&tris, Preset::Fast, npb, head, top.rests_start_blocks()),
+                    Built::over(&tris, Build::default(), npb, head, top.rests_start_blocks()),
                 )
             })
             .collect();

@@ -177,7 +177,7 @@ pub fn blocked(bvh: &Bvh2, treelet: usize, head: usize, rest_starts_a_block: boo
 #[cfg(test)]
 pub(super) mod tests {
     use super::Laid;
-    use crate::bvh::{Built, Bvh, Child, Node, Preset, WIDTH};
+    use crate::bvh::{Build, Built, Bvh, Child, Node, Preset, WIDTH};
     use crate::scene::Model;
 
     pub(in crate::bvh) fn soup(n: usize) -> Model {
@@ -230,6 +230,38 @@ pub(super) mod tests {
         let same = Model::from_triangles(vec![model.triangles[0]; 20_000]);
         let bvh = check_tree(&same, 256);
         assert!(bvh.depth <= 16, "depth {}", bvh.depth);
+    }
+
+    /// A lower node cost makes smaller leaves and more nodes, a valid tree all the same.
+    #[test]
+    fn a_lower_node_cost_makes_smaller_leaves() {
+        let model = soup(20000);
+        let leaves = |bvh: &Bvh| -> (usize, usize) {
+            let counts = bvh
+                .nodes
+                .iter()
+                .flat_map(|n| (0..WIDTH).map(move |i| (n.counts >> (8 * i)) & 0xff));
+            let leaf = counts.filter(|&c| c != crate::bvh::EMPTY && c != crate::bvh::INNER);
+            leaf.fold((0, 0), |(k, t), c| (k + 1, t + c as usize))
+        };
+        let default = Bvh::build(&model, Build::default(), 256);
+        let (k3, t3) = leaves(&default);
+        for cost in [1.0, 0.5] {
+            let build = Build {
+                node_cost: cost,
+                ..Build::default()
+            };
+            let bvh = Bvh::build(&model, build, 256);
+            check_nodes(&bvh.nodes, &bvh.triangles, &bvh.prim_ids, &model, bvh.depth);
+            let (k, t) = leaves(&bvh);
+            assert_eq!(t, t3, "cost {cost}: every triangle in one leaf");
+            assert!(
+                k * 2 > k3 * 3 && bvh.nodes.len() > default.nodes.len(),
+                "cost {cost}: {k} leaves and {} nodes against {k3} and {} at the default",
+                bvh.nodes.len(),
+                default.nodes.len()
+            );
+        }
     }
 
     /// Walks the tree of `model`: every triangle once, every node reached once, children after
@@ -339,7 +371,7 @@ pub(super) mod tests {
         // Small blocks, so that there are many treelets and the room left in a block is often
         // smaller than a node's inner children.
         let t = 16;
-        let laid = Built::over(&soup(20000).triangles, Preset::Fast, t, t, false).laid;
+        let laid = Built::over(&soup(20000).triangles, Build::default(), t, t, false).laid;
         let n = laid.nodes.len();
         assert!(
             laid.treelets.len() > n / t,

@@ -194,14 +194,46 @@ pub enum Preset {
     Medium,
 }
 
-impl Preset {
+/// How a tree is built: the obvhs preset, and what a node visit costs beside a triangle test
+/// when the build decides which subtrees become leaves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Build {
+    pub preset: Preset,
+    /// obvhs's `collapse_traversal_cost`, a triangle test costing 1. Its presets' 3 makes leaves
+    /// of up to 8 triangles; one iteration of dcrt's traversal loop visits a node or tests a
+    /// triangle, so a lower cost makes a ray run fewer iterations through a larger tree
+    /// (docs/ARCHITECTURE.md, The BVH).
+    pub node_cost: f32,
+}
+
+/// The node cost of obvhs's presets, dcrt's default: the smaller, slower tree.
+pub const DEFAULT_NODE_COST: f32 = 3.0;
+
+impl Default for Build {
+    fn default() -> Build {
+        Build::from(Preset::Fast)
+    }
+}
+
+impl From<Preset> for Build {
+    fn from(preset: Preset) -> Build {
+        Build {
+            preset,
+            node_cost: DEFAULT_NODE_COST,
+        }
+    }
+}
+
+impl Build {
     fn params(self) -> BvhBuildParams {
-        match self {
+        let mut p = match self.preset {
             Preset::Fastest => BvhBuildParams::fastest_build(),
             Preset::VeryFast => BvhBuildParams::very_fast_build(),
             Preset::Fast => BvhBuildParams::fast_build(),
             Preset::Medium => BvhBuildParams::medium_build(),
-        }
+        };
+        p.collapse_traversal_cost = self.node_cost;
+        p
     }
 }
 
@@ -225,10 +257,10 @@ pub struct Bvh {
 
 impl Bvh {
     /// Builds over `model`'s triangles; `nodes_per_block` sets the treelet size of the layout.
-    pub fn build(model: &Model, preset: Preset, nodes_per_block: usize) -> Bvh {
+    pub fn build(model: &Model, build: impl Into<Build>, nodes_per_block: usize) -> Bvh {
         let built = Built::over(
             &model.triangles,
-            preset,
+            build.into(),
             nodes_per_block,
             nodes_per_block,
             false,
@@ -265,7 +297,7 @@ impl Built {
     /// `rest_starts_a_block` means).
     pub fn over(
         triangles: &[[[f32; 3]; 3]],
-        preset: Preset,
+        build: Build,
         nodes_per_block: usize,
         head: usize,
         rest_starts_a_block: bool,
@@ -274,10 +306,10 @@ impl Built {
         let aabbs: Vec<Aabb> = triangles.iter().map(triangle_box).collect();
         let mut core = Duration::ZERO;
         let bvh2 = match coincident::find(&aabbs) {
-            None => obvhs::bvh2::builder::build_bvh2(&aabbs, preset.params(), &mut core),
+            None => obvhs::bvh2::builder::build_bvh2(&aabbs, build.params(), &mut core),
             Some(groups) => {
                 let kept: Vec<Aabb> = groups.kept.iter().map(|&p| aabbs[p as usize]).collect();
-                let mut b = obvhs::bvh2::builder::build_bvh2(&kept, preset.params(), &mut core);
+                let mut b = obvhs::bvh2::builder::build_bvh2(&kept, build.params(), &mut core);
                 groups.restore(&mut b, &aabbs);
                 b
             }

@@ -42,7 +42,7 @@ mod rma;
 mod startup;
 
 use crate::blocks::Format;
-use crate::bvh::Preset;
+use crate::bvh::Build;
 use crate::dc::{CacheMap, CacheSize, Replicate};
 use crate::error::{Error, Result};
 use crate::gpu::tracer::Settings;
@@ -153,7 +153,7 @@ pub struct Options {
     /// the agreement).
     pub settings: Settings,
     pub shade: Overrides,
-    pub preset: Preset,
+    pub build: Build,
     pub format: Format,
     /// The distributed cache; `None` replicates the model on every rank.
     pub cache: Option<CacheOptions>,

@@ -164,7 +164,7 @@ fn open(opts: &Options, roles: Roles, rank: u32) -> Result<Opened> {
             legend,
         });
     };
-    let mut loaded = Loaded::open(&opts.input, opts.preset, opts.format)?;
+    let mut loaded = Loaded::open(&opts.input, opts.build, opts.format)?;
     if let Some(c) = opts.camera {
         loaded.camera = c;
     }

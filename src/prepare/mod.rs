@@ -18,7 +18,7 @@ pub mod spill;
 use crate::blocks::Format;
 use crate::blocks::file::{BlockWriter, Meta};
 use crate::bvh::join::{Joined, PartShape, Run, Top};
-use crate::bvh::{Built, Node, Preset};
+use crate::bvh::{Build, Built, Node};
 use crate::error::{Error, Result};
 use crate::files::Scratch;
 use crate::progress::Progress;
@@ -36,7 +36,7 @@ use std::time::Instant;
 /// How to prepare.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
-    pub preset: Preset,
+    pub build: Build,
     pub format: Format,
     pub budget: Budget,
     pub progress: Progress,
@@ -163,7 +163,7 @@ fn in_core(
 ) -> Result<Report> {
     let bar = o.progress.counter("building in memory");
     bar.tick();
-    let p = Prepared::from_model(model, o.preset, o.format, 0.0)?;
+    let p = Prepared::from_model(model, o.build, o.format, 0.0)?;
     let camera = scene.camera_or_default(&p.model);
     let meta = p.meta(scene, camera, scene.width, scene.height);
     crate::blocks::file::write(output, &p.blocks, &meta)?;
@@ -376,7 +376,7 @@ fn build_parts(
         while let Some(chunk) = r.next_chunk()? {
             tris.extend(chunk.iter().map(|r| r.tri));
         }
-        let built = Built::over(&tris, o.preset, npb, head.0, head.1);
+        let built = Built::over(&tris, o.build, npb, head.0, head.1);
         drop(tris);
         at.push((nodes.count, order.count));
         nodes.push(&built.laid.nodes)?;

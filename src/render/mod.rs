@@ -7,7 +7,7 @@ pub mod memory;
 use crate::blocks::file::{DcbFile, Meta};
 use crate::blocks::ranks::Ranks;
 use crate::blocks::{Blocks, Format};
-use crate::bvh::{Bvh, Preset};
+use crate::bvh::{Build, Bvh};
 use crate::dc::source::{LocalFile, VirtualRanks};
 use crate::dc::{CacheMap, CacheSize, Replicate};
 use crate::error::{Error, Result};
@@ -26,21 +26,21 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    pub fn new(scene: &Scene, preset: Preset, format: Format) -> Result<Prepared> {
+    pub fn new(scene: &Scene, build: Build, format: Format) -> Result<Prepared> {
         memory::check_generators(scene)?;
         let t = Instant::now();
         let model = scene.load_model()?;
         let load_seconds = t.elapsed().as_secs_f64();
-        Prepared::from_model(model, preset, format, load_seconds)
+        Prepared::from_model(model, build, format, load_seconds)
     }
 
     pub fn from_model(
         model: Model,
-        preset: Preset,
+        build: Build,
         format: Format,
         load_seconds: f64,
     ) -> Result<Prepared> {
-        let bvh = Bvh::build(&model, preset, format.nodes_per_block() as usize);
+        let bvh = Bvh::build(&model, build, format.nodes_per_block() as usize);
         let mut blocks = Blocks::pack(&bvh, format)?;
         if let Some(a) = &model.attributes {
             blocks = blocks.with_attributes(&bvh, a)?;
@@ -134,12 +134,12 @@ pub struct Loaded {
 impl Loaded {
     /// Loads `path`: a `.dcb` block file, a scene naming one with `model = "..."`, or a scene of
     /// meshes, prepared on the fly.
-    pub fn open(path: &Path, preset: Preset, format: Format) -> Result<Loaded> {
+    pub fn open(path: &Path, build: Build, format: Format) -> Result<Loaded> {
         let scene = match Input::resolve(path)? {
             Input::Dcb(dcb, scene) => return Loaded::from_dcb(&dcb, scene.as_ref()),
             Input::Scene(scene) => scene,
         };
-        let p = Prepared::new(&scene, preset, format)?;
+        let p = Prepared::new(&scene, build, format)?;
         let camera = scene.camera_or_default(&p.model);
         Ok(Loaded {
             meshes: p.meshes(),

@@ -190,6 +190,14 @@ fn bad_command_line_values() {
         &["out of range"],
     );
     fails(&d, &s, &["--step-budget", "70000"], &["--step-budget"]);
+    for cost in ["0", "-1", "nan", "inf", "1e9"] {
+        fails(
+            &d,
+            &s,
+            &["--bvh-node-cost", cost],
+            &["--bvh-node-cost", "node cost"],
+        );
+    }
     fails(&d, &s, &["--aov", "depth"], &["--exr"]);
     let missing_dir = d.path("no/such/dir/x.exr");
     let m = missing_dir.to_str().unwrap();

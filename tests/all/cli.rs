@@ -563,6 +563,7 @@ fn gpu_bench_script_prints_every_mode_and_the_dc_table() {
             .args(["--runs", "1"])
             .env_remove("ADAPTER")
             .env_remove("MODES")
+            .env_remove("NODE_COSTS")
             .envs([
                 ("TRIANGLES", "3000"),
                 ("SIZE", "24"),
@@ -585,19 +586,22 @@ fn gpu_bench_script_prints_every_mode_and_the_dc_table() {
     );
     assert!(text.starts_with("adapter "), "{text}");
     for generator in ["rm", "assembly"] {
-        for store in ["texture", "buffer"] {
-            for mode in ["cast", "ao", "path"] {
-                let line = text
-                    .lines()
-                    .find(|l| l.split_whitespace().take(3).eq([generator, store, mode]))
-                    .unwrap_or_else(|| panic!("no {generator} {store} {mode} line: {text}"));
-                let rate: f64 = line.split_whitespace().nth(3).unwrap().parse().unwrap();
-                assert!(rate > 0.0 && line.contains("Mrays/s"), "{line}");
+        for cost in ["3", "1"] {
+            for store in ["texture", "buffer"] {
+                for mode in ["cast", "ao", "path"] {
+                    let want = [generator, "node", "cost", cost, store, mode];
+                    let line = text
+                        .lines()
+                        .find(|l| l.split_whitespace().take(6).eq(want))
+                        .unwrap_or_else(|| panic!("no {want:?} line: {text}"));
+                    let rate: f64 = line.split_whitespace().nth(6).unwrap().parse().unwrap();
+                    assert!(rate > 0.0 && line.contains("Mrays/s"), "{line}");
+                }
             }
         }
         let json = std::fs::read_to_string(out.join(format!("rays-{generator}.json"))).unwrap();
         let v: serde_json::Value = serde_json::from_str(&json).unwrap();
-        assert_eq!(v["rows"].as_array().unwrap().len(), 6, "{json}");
+        assert_eq!(v["rows"].as_array().unwrap().len(), 12, "{json}");
     }
     for step in ["3", "120"] {
         let table = std::fs::read_to_string(out.join(format!("dc-24-{step}.txt"))).unwrap();

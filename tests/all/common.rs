@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests.
 
 use dcrt::blocks::Format;
-use dcrt::bvh::Preset;
+use dcrt::bvh::Build;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::frame::{Frame, FrameStats};
 use dcrt::gpu::layout::Pixel;
@@ -25,7 +25,7 @@ pub fn scene(name: &str) -> Scene {
 }
 
 pub fn prepare(model: Model) -> Prepared {
-    Prepared::from_model(model, Preset::Fast, Format::default(), 0.0).unwrap()
+    Prepared::from_model(model, Build::default(), Format::default(), 0.0).unwrap()
 }
 
 pub fn render(

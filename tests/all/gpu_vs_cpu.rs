@@ -2,17 +2,26 @@
 //! primitive id on at least 99.9%, depth within 1e-5 relative and normals where ids agree.
 
 use crate::common::*;
+use dcrt::blocks::Format;
+use dcrt::bvh::Build;
+use dcrt::gpu::frame::FrameStats;
 use dcrt::gpu::tracer::Settings;
+use dcrt::render::Prepared;
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
 
 const W: u32 = 256;
 const H: u32 = 256;
 
-fn check(name: &str, model: Model, camera: Camera) {
+fn check(name: &str, model: Model, camera: Camera) -> FrameStats {
+    check_built(name, model, camera, Build::default())
+}
+
+/// `check` on a tree built as `build` says; the frame's statistics.
+fn check_built(name: &str, model: Model, camera: Camera, build: Build) -> FrameStats {
     let gpu = gpu();
-    let prepared = prepare(model);
-    let (frame, _) = render(&gpu, &prepared, &camera, W, H, Settings::default());
+    let prepared = Prepared::from_model(model, build, Format::default(), 0.0).unwrap();
+    let (frame, stats) = render(&gpu, &prepared, &camera, W, H, Settings::default());
     let reference = reference(&prepared.model, &camera, W, H);
     let n = frame.pixels.len();
     let (mut hitmiss_bad, mut id_bad, mut both_hit) = (0usize, 0usize, 0usize);
@@ -58,6 +67,7 @@ fn check(name: &str, model: Model, camera: Camera) {
         "{name}: ids differ on {id_bad}"
     );
     assert!(worst_depth <= 1e-5, "{name}: depth error {worst_depth}");
+    stats
 }
 
 #[test]
@@ -75,10 +85,23 @@ fn generated(g: Generator, triangles: u64) -> (Model, Camera) {
     (model, camera)
 }
 
+/// Also with a tree of smaller leaves (`--bvh-node-cost 1`), which takes fewer steps.
 #[test]
 fn rm_matches_the_reference() {
     let (m, c) = generated(Generator::Rm, 60_000);
-    check("rm", m, c);
+    let default = check("rm", m.clone(), c);
+    let small = Build {
+        node_cost: 1.0,
+        ..Build::default()
+    };
+    let smaller = check_built("rm, node cost 1", m, c, small);
+    assert_eq!(smaller.rays, default.rays);
+    assert!(
+        smaller.steps * 20 < default.steps * 19,
+        "steps {} against {} at the default node cost",
+        smaller.steps,
+        default.steps
+    );
 }
 
 #[test]

@@ -12,7 +12,7 @@ mod trace;
 mod view;
 
 use clap::{Args, Parser, Subcommand};
-use dcrt::bvh::Preset;
+use dcrt::bvh::{Build, DEFAULT_NODE_COST, Preset};
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{DEFAULT_STEP_BUDGET, Settings};
 use dcrt::shading::{Mode, Overrides, Sampler};
@@ -79,9 +79,32 @@ struct BuildArgs {
     /// obvhs build preset.
     #[arg(long, value_enum, default_value_t = Preset::Fast)]
     bvh_preset: Preset,
+    /// What a node visit costs beside a triangle test when the build makes leaves (obvhs's
+    /// collapse cost, above 0): lower makes smaller leaves, so rays run fewer traversal steps
+    /// through a larger tree (1: about 12% fewer steps and a fifth more blocks than the default).
+    #[arg(long, default_value_t = DEFAULT_NODE_COST, allow_negative_numbers = true)]
+    bvh_node_cost: f32,
     /// Block size in bytes.
     #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
     block_size: u32,
+}
+
+impl BuildArgs {
+    fn tree(&self) -> anyhow::Result<Build> {
+        Ok(Build {
+            preset: self.bvh_preset,
+            node_cost: node_cost("--bvh-node-cost", self.bvh_node_cost)?,
+        })
+    }
+}
+
+/// `c` if it is a node cost (`--bvh-node-cost`), else an error naming `option`.
+fn node_cost(option: &str, c: f32) -> anyhow::Result<f32> {
+    if c.is_finite() && c > 0.0 && c <= 1000.0 {
+        Ok(c)
+    } else {
+        anyhow::bail!("{option} {c} is not a node cost: a number above 0 and at most 1000")
+    }
 }
 
 /// Shading options; each overrides the scene's `[render]` value when given.

@@ -1,10 +1,10 @@
 //! `dcrt prepare`: a scene's BVH and blocks, built once into a block file, in memory or out of
 //! core within `--memory`.
 
+use crate::BuildArgs;
 use anyhow::{Context, Result};
 use clap::Args;
 use dcrt::blocks::Format;
-use dcrt::bvh::Preset;
 use dcrt::prepare::budget::Budget;
 use dcrt::prepare::{Options, prepare as run};
 use dcrt::progress::Progress;
@@ -18,10 +18,8 @@ pub struct PrepareArgs {
     /// Output block file.
     #[arg(short, long)]
     output: PathBuf,
-    #[arg(long, value_enum, default_value_t = Preset::Fast)]
-    bvh_preset: Preset,
-    #[arg(long, default_value_t = dcrt::blocks::DEFAULT_BLOCK_BYTES)]
-    block_size: u32,
+    #[command(flatten)]
+    build: BuildArgs,
     /// Memory the build may use, in binary units (4GiB, 512MiB); a model whose build in memory
     /// needs more is built out of core, in parts that fit. Default: half the memory available.
     #[arg(long)]
@@ -37,12 +35,12 @@ pub fn prepare(a: PrepareArgs) -> Result<()> {
         Some(m) => Budget::parse(m)?,
         None => Budget::default_for_machine(),
     };
-    let format = Format::new(a.block_size)?;
+    let format = Format::new(a.build.block_size)?;
     let inputs = Scene::input_files(&a.scene)?;
     dcrt::files::check_outputs(&[("block file", &a.output, 1)], &inputs)?;
     let scene = Scene::load(&a.scene)?;
     let o = Options {
-        preset: a.bvh_preset,
+        build: a.build.tree()?,
         format,
         budget,
         progress: Progress { quiet: a.quiet },

@@ -293,7 +293,7 @@ pub fn open_model(
 ) -> Result<(Option<DcOptions>, Loaded)> {
     let dc = dc.options()?;
     let camera = camera.map(pvcc::load_pvcc).transpose()?;
-    let mut loaded = Loaded::open(scene, gpu.build.bvh_preset, format)?;
+    let mut loaded = Loaded::open(scene, gpu.build.tree()?, format)?;
     if let Some(c) = camera {
         loaded.camera = c;
     }
@@ -465,7 +465,7 @@ fn render_cluster(a: &RenderArgs, sw: &Switches, format: Format, k: u32) -> Resu
         settings: sw.tracer.apply(settings(&a.gpu)),
         shade: sw.shade.apply(a.shade.overrides()),
         exposure: a.exposure,
-        preset: a.gpu.build.bvh_preset,
+        build: a.gpu.build.tree()?,
         format,
         cache,
         copy_threads: c.copy_threads,

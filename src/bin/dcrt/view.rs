@@ -123,7 +123,7 @@ fn view_cluster(a: &ViewArgs, k: u32) -> Result<()> {
         settings: settings(&a.gpu),
         shade: a.shade.overrides(),
         exposure: 0.0,
-        preset: a.gpu.build.bvh_preset,
+        build: a.gpu.build.tree()?,
         format: Format::new(a.gpu.build.block_size)?,
         cache: a.dc.cluster_cache()?,
         copy_threads: c.copy_threads,

@@ -115,7 +115,7 @@ pub fn bench(a: &ClusterArgs) -> Result<()> {
     };
     let mut models = Vec::new();
     for (name, scene) in &scenes {
-        let p = Prepared::new(scene, a.build.bvh_preset, format)?;
+        let p = Prepared::new(scene, a.build.tree()?, format)?;
         let camera = scene.camera_or_default(&p.model);
         let path = dir.join(format!("{name}.dcb"));
         dcrt::blocks::file::write(&path, &p.blocks, &p.meta(scene, camera, a.width, a.height))?;

@@ -165,7 +165,7 @@ fn run(
     camera: Camera,
     format: Format,
 ) -> Result<()> {
-    let prepared = Prepared::from_model(model, a.gpu.build.bvh_preset, format, 0.0)?;
+    let prepared = Prepared::from_model(model, a.gpu.build.tree()?, format, 0.0)?;
     let blocks = &prepared.blocks;
     let mut configs: Vec<(Option<DcOptions>, Option<String>)> = vec![(None, None)];
     for &replicate in &a.replicate_blocks {

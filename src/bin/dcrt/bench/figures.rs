@@ -200,7 +200,7 @@ pub fn bench(a: &FiguresArgs) -> Result<()> {
     for g in MODELS {
         let name = g.name().to_string();
         let scene = Scene::generated(g, triangles, width, height);
-        let p = Prepared::new(&scene, a.build.bvh_preset, format)?;
+        let p = Prepared::new(&scene, a.build.tree()?, format)?;
         let camera = scene.camera_or_default(&p.model);
         let dcb = runs.join(format!("{name}.dcb"));
         dcrt::blocks::file::write(&dcb, &p.blocks, &p.meta(&scene, camera, width, height))?;

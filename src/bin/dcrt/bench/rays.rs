@@ -8,7 +8,7 @@ use crate::{GpuArgs, settings};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dcrt::blocks::Format;
-use dcrt::bvh::Preset;
+use dcrt::bvh::{Build, Preset};
 use dcrt::gpu::Gpu;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{Settings, Tracer};
@@ -29,6 +29,10 @@ pub struct RaysArgs {
     /// Also build and trace with every obvhs preset, side by side.
     #[arg(long)]
     bvh_presets: bool,
+    /// Also build and trace with each of these node costs (`--bvh-node-cost`), side by side:
+    /// the trade of tree size for traversal steps.
+    #[arg(long, value_delimiter = ',')]
+    bvh_node_costs: Vec<f32>,
     /// Trace with both block stores (texture, buffer), side by side.
     #[arg(long)]
     stores: bool,
@@ -79,6 +83,10 @@ const BENCH_MAX_DEPTH: u32 = 3;
 #[derive(serde::Serialize)]
 struct BenchRow {
     preset: String,
+    /// The build's node cost (`--bvh-node-cost`; 0 for a block file's tree) and the model's
+    /// blocks in MiB.
+    node_cost: f32,
+    model_mib: f64,
     store: Store,
     mode: Mode,
     bvh_build_ms: f64,
@@ -198,6 +206,21 @@ fn run(
     } else {
         vec![a.gpu.build.bvh_preset]
     };
+    let main = a.gpu.build.tree()?;
+    let mut costs = vec![main.node_cost];
+    for &c in &a.bvh_node_costs {
+        if !costs.contains(&crate::node_cost("--bvh-node-costs", c)?) {
+            costs.push(c);
+        }
+    }
+    let builds: Vec<Build> = presets
+        .iter()
+        .flat_map(|&preset| {
+            costs
+                .iter()
+                .map(move |&node_cost| Build { preset, node_cost })
+        })
+        .collect();
     let mut rows = Vec::new();
     let (stores, modes) = stores_and_modes(a);
     let mut peer_ids = None;
@@ -205,13 +228,15 @@ fn run(
         quiet: a.report.quiet,
     }
     .bar(
-        (presets.len() * stores.len() * modes.len()) as u64,
+        (builds.len() * stores.len() * modes.len()) as u64,
         "bench rows",
     );
-    for preset in presets {
-        let prepared = Prepared::from_model(model.clone(), preset, format, 0.0)?;
+    for build in builds {
+        let prepared = Prepared::from_model(model.clone(), build, format, 0.0)?;
         let tree = Tree {
-            name: format!("{preset:?}").to_lowercase(),
+            name: format!("{:?}", build.preset).to_lowercase(),
+            node_cost: build.node_cost,
+            model_mib: prepared.blocks.bytes() as f64 / (1u64 << 20) as f64,
             build_ms: prepared.bvh.build_time.as_secs_f64() * 1e3,
             depth: prepared.bvh.depth,
         };
@@ -234,7 +259,7 @@ fn run(
                     mode,
                 )?);
             }
-            if a.peer.is_some() && preset == a.gpu.build.bvh_preset && store == a.gpu.store {
+            if a.peer.is_some() && build == main && store == a.gpu.store {
                 tracer.set_shading(shading_for(Mode::Cast))?;
                 let (frame, _) = tracer.render(
                     &camera.basis(a.scene.width, a.scene.height),
@@ -248,7 +273,8 @@ fn run(
     let main_row = rows
         .iter()
         .find(|r| {
-            r.preset == format!("{:?}", a.gpu.build.bvh_preset).to_lowercase()
+            r.preset == format!("{:?}", main.preset).to_lowercase()
+                && r.node_cost == main.node_cost
                 && r.store == a.gpu.store
                 && r.mode == modes[0]
         })
@@ -266,7 +292,10 @@ fn run(
             };
             let mut p = embree(a, &model, &camera, &line, &ids)?;
             let row = rows.iter().find(|r| {
-                r.preset == main_row.preset && r.store == main_row.store && r.mode == mode
+                r.preset == main_row.preset
+                    && r.node_cost == main_row.node_cost
+                    && r.store == main_row.store
+                    && r.mode == mode
             });
             p.ratio = row.map_or(f64::NAN, |r| r.mrays_per_s) / p.mrays_per_s;
             peers.push(p);
@@ -297,9 +326,12 @@ fn run(
     emit(a.report.json, &report, print)
 }
 
-/// The tree a row traces: the preset it was built with (or `file`), its build time and depth.
+/// The tree a row traces: the preset it was built with (or `file`) and its node cost, the
+/// model's size, its build time and depth.
 struct Tree {
     name: String,
+    node_cost: f32,
+    model_mib: f64,
     build_ms: f64,
     depth: u32,
 }
@@ -307,15 +339,19 @@ struct Tree {
 /// A prepared block file traced as it is (its tree fixed, so no presets and no peer), per store
 /// and mode: the same rows as a scene's, its file name as the preset.
 fn run_file(a: &RaysArgs, gpu: &Gpu, path: &Path) -> Result<()> {
-    if a.bvh_presets || a.peer.is_some() {
+    if a.bvh_presets || !a.bvh_node_costs.is_empty() || a.peer.is_some() {
         bail!(
-            "{}: a block file holds its BVH; --bvh-presets and --peer need a scene",
+            "{}: a block file holds its BVH; --bvh-presets, --bvh-node-costs and --peer need a \
+             scene",
             path.display()
         );
     }
     let loaded = dcrt::render::Loaded::from_dcb(path, None)?;
     let tree = Tree {
         name: "file".into(),
+        node_cost: 0.0,
+        // The file's size: its blocks and a small header.
+        model_mib: std::fs::metadata(path)?.len() as f64 / (1u64 << 20) as f64,
         build_ms: 0.0,
         depth: loaded.depth,
     };
@@ -385,6 +421,8 @@ fn measure(
     let per_ray = |v: u64| v as f64 / rays.max(1) as f64;
     Ok(BenchRow {
         preset: tree.name.clone(),
+        node_cost: tree.node_cost,
+        model_mib: tree.model_mib,
         store,
         mode,
         bvh_build_ms: tree.build_ms,
@@ -521,6 +559,8 @@ fn print(report: &BenchReport) {
     );
     let t = Table(&[
         ("preset", -9),
+        ("node", 5),
+        ("MiB", 6),
         ("store", -8),
         ("mode", -7),
         ("build ms", 9),
@@ -542,6 +582,8 @@ fn print(report: &BenchReport) {
     for r in &report.rows {
         t.row(&[
             r.preset.clone(),
+            format!("{}", r.node_cost),
+            format!("{:.1}", r.model_mib),
             format!("{:?}", r.store).to_lowercase(),
             format!("{:?}", r.mode).to_lowercase(),
             format!("{:.1}", r.bvh_build_ms),

@@ -9,7 +9,7 @@ use super::{MODELS, Table, check_model, emit};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dcrt::blocks::Format;
-use dcrt::bvh::Preset;
+use dcrt::bvh::Build;
 use dcrt::gpu::Gpu;
 use dcrt::gpu::frame::{Frame, FrameStats};
 use dcrt::gpu::tracer::Settings;
@@ -258,7 +258,7 @@ fn run(gpu: &Gpu, a: &ShadingArgs) -> Result<()> {
         let model = scene.load_model()?;
         let camera = scene.camera_or_default(&model);
         let basis = camera.basis(w, h);
-        let p = Prepared::from_model(model, Preset::Fast, Format::default(), 0.0)?;
+        let p = Prepared::from_model(model, Build::default(), Format::default(), 0.0)?;
         for mode in [Mode::Ao, Mode::Path] {
             let base = Shading {
                 mode,

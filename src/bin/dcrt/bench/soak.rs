@@ -118,7 +118,7 @@ fn run(
 ) -> Result<()> {
     let frames = a.frames;
     let triangles = model.triangles.len();
-    let prepared = Prepared::from_model(model, a.gpu.build.bvh_preset, format, 0.0)?;
+    let prepared = Prepared::from_model(model, a.gpu.build.tree()?, format, 0.0)?;
     // `--cache none` replicates; else as rank --rank of --virtual-ranks.
     let cache = Some(&a.cache).filter(|c| c.as_str() != "none");
     let dc = match cache {
