@@ -200,9 +200,9 @@ pub enum Preset {
 pub struct Build {
     pub preset: Preset,
     /// obvhs's `collapse_traversal_cost`, a triangle test costing 1. Its presets' 3 makes leaves
-    /// of up to 8 triangles; one iteration of dcrt's traversal loop visits a node or tests a
-    /// triangle, so a lower cost makes a ray run fewer iterations through a larger tree
-    /// (docs/ARCHITECTURE.md, The BVH).
+    /// of up to 8 triangles (`fastest` makes leaves of one and ignores it); one iteration of
+    /// dcrt's traversal loop visits a node or tests a triangle, so a lower cost makes a ray run
+    /// fewer iterations through a larger tree (docs/ARCHITECTURE.md, BVH and blocks).
     pub node_cost: f32,
 }
 
