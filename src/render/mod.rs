@@ -133,10 +133,21 @@ pub struct Loaded {
 
 impl Loaded {
     /// Loads `path`: a `.dcb` block file, a scene naming one with `model = "..."`, or a scene of
-    /// meshes, prepared on the fly.
+    /// meshes, prepared on the fly. A block file holds the tree and blocks it was prepared with:
+    /// another `build` or `format` for one is an error, not ignored.
     pub fn open(path: &Path, build: Build, format: Format) -> Result<Loaded> {
         let scene = match Input::resolve(path)? {
-            Input::Dcb(dcb, scene) => return Loaded::from_dcb(&dcb, scene.as_ref()),
+            Input::Dcb(dcb, scene) => {
+                if build != Build::default() || format != Format::default() {
+                    return Err(Error::Invalid(format!(
+                        "{}: a block file holds the BVH and blocks it was prepared with; \
+                         --bvh-preset, --bvh-node-cost and --block-size apply to scenes (give \
+                         them to `dcrt prepare`)",
+                        dcb.display()
+                    )));
+                }
+                return Loaded::from_dcb(&dcb, scene.as_ref());
+            }
             Input::Scene(scene) => scene,
         };
         let p = Prepared::new(&scene, build, format)?;

@@ -208,6 +208,30 @@ fn bad_command_line_values() {
     fails(&d, &s, &["--timeout", "0"], &["--timeout"]);
 }
 
+/// A block file holds its tree and blocks: build options given with it are refused, not ignored.
+#[test]
+fn build_options_with_a_block_file_are_refused() {
+    let d = TempDir::new("dcb-build");
+    let s = d.write(
+        "ok.toml",
+        format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
+    );
+    let dcb = d.path("model.dcb");
+    let r = dcrt(&[&"prepare", &s, &"-o", &dcb, &"-q"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    for extra in [
+        ["--bvh-node-cost", "1"],
+        ["--bvh-preset", "medium"],
+        ["--block-size", "4096"],
+    ] {
+        fails(&d, &dcb, &extra, &["model.dcb", extra[0], "dcrt prepare"]);
+    }
+    // The defaults, given or not, are what the file was built with.
+    let out = d.path("ok.png");
+    let r = dcrt(&[&"render", &dcb, &"-o", &out, &"--bvh-node-cost", &"3"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+}
+
 #[test]
 fn scene_values_are_strict() {
     let d = TempDir::new("strict");

@@ -220,7 +220,7 @@ fn settings(gpu: &GpuArgs, switches: &switches::TracerSwitches) -> dcrt::gpu::tr
 }
 
 /// The build options of `cluster` and `figures`, whose jobs read the model they prepare.
-fn format_of(build: &BuildArgs) -> Result<Format> {
+pub(crate) fn format_of(build: &BuildArgs) -> Result<Format> {
     Ok(Format::new(build.block_size)?)
 }
 

@@ -3,7 +3,9 @@
 //! entered), and optionally a native peer tracing the same camera rays in the same run (`--peer
 //! embree`).
 
-use super::{ReportArgs, SceneArgs, Table, block_count_frame, emit, frame_stats, median};
+use super::{
+    ReportArgs, SceneArgs, Table, block_count_frame, emit, format_of, frame_stats, median,
+};
 use crate::{GpuArgs, settings};
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -339,10 +341,15 @@ struct Tree {
 /// A prepared block file traced as it is (its tree fixed, so no presets and no peer), per store
 /// and mode: the same rows as a scene's, its file name as the preset.
 fn run_file(a: &RaysArgs, gpu: &Gpu, path: &Path) -> Result<()> {
-    if a.bvh_presets || !a.bvh_node_costs.is_empty() || a.peer.is_some() {
+    if a.bvh_presets
+        || !a.bvh_node_costs.is_empty()
+        || a.peer.is_some()
+        || a.gpu.build.tree()? != dcrt::bvh::Build::default()
+        || format_of(&a.gpu.build)? != Format::default()
+    {
         bail!(
-            "{}: a block file holds its BVH; --bvh-presets, --bvh-node-costs and --peer need a \
-             scene",
+            "{}: a block file holds its BVH and blocks; --bvh-preset(s), --bvh-node-cost(s), \
+             --block-size and --peer need a scene",
             path.display()
         );
     }
