@@ -178,10 +178,7 @@ fn bad_scene_files() {
 #[test]
 fn bad_command_line_values() {
     let d = TempDir::new("cli");
-    let s = d.write(
-        "ok.toml",
-        format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
-    );
+    let s = small_scene(&d);
     fails(&d, &s, &["--width", "0"], &["out of range"]);
     fails(
         &d,
@@ -208,14 +205,19 @@ fn bad_command_line_values() {
     fails(&d, &s, &["--timeout", "0"], &["--timeout"]);
 }
 
+/// `ok.toml` in `d`: a 1,000-triangle generated scene.
+fn small_scene(d: &TempDir) -> std::path::PathBuf {
+    d.write(
+        "ok.toml",
+        format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
+    )
+}
+
 /// A block file holds its tree and blocks: build options given with it are refused, not ignored.
 #[test]
 fn build_options_with_a_block_file_are_refused() {
     let d = TempDir::new("dcb-build");
-    let s = d.write(
-        "ok.toml",
-        format!("{CAMERA}[[mesh]]\ngenerator = \"rm\"\ntriangles = 1000\n"),
-    );
+    let s = small_scene(&d);
     let dcb = d.path("model.dcb");
     let r = dcrt(&[&"prepare", &s, &"-o", &dcb, &"-q"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
