@@ -337,6 +337,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         // buffer is reached only by a ray whose stack is deeper than TOP.
         var top = Top(vec2(0u), vec2(0u), vec2(0u), vec2(0u));
         var held = 0u;
+        // A resumed ray takes its top entries back into registers at once: its stack was
+        // stored a dispatch ago and is cold, and a CPU driver loads a buffer lane by lane, so
+        // loads issued together overlap their misses where pops one at a time in the loop
+        // waited for each (docs/ARCHITECTURE.md, The round loop). Slots below the stack's
+        // bottom are read (they are the ray's own) but not held; a wave's new rays have none.
+        if FIRST == 0u && r.sp > 0u {
+            let sp = r.sp;
+            top = Top(stacks[base + max(sp, 1u) - 1u], stacks[base + max(sp, 2u) - 2u],
+                      stacks[base + max(sp, 3u) - 3u], stacks[base + max(sp, 4u) - 4u]);
+            held = min(sp, TOP);
+            r.sp = sp - held;
+        }
         loop {
             loop {
                 if cur.y == NONE && r.sp == 0u && held == 0u {
