@@ -161,6 +161,29 @@ impl CachePolicy {
         self.ranks.replicated >= self.node_blocks
     }
 
+    /// The fewest fault rounds in which any schedule of rays could bring a frame's borrowed
+    /// blocks (`looked_up[k]` for block k) through this cache: a round loads at most one block
+    /// into each line (`plan_round`, fetching ahead included), only rounds with faults load, and
+    /// at most one of the blocks a line takes can be there when the frame begins. A
+    /// direct-mapped cache (`Ize`, `Demarle`) needs as many rounds as the blocks of its fullest
+    /// line, less one; `Lru`, which puts a block in any line, the blocks over the lines, less
+    /// one. The order in which rays reach their blocks (a child's block only after its
+    /// parent's) can only add rounds: the bound shows how far a scheduler is from what the
+    /// cache's size and mapping allow (docs/ARCHITECTURE.md, The distributed cache).
+    pub fn fault_round_bound(&self, looked_up: &[bool]) -> u32 {
+        let blocks = (0u32..).zip(looked_up).filter(|(_, u)| **u).map(|(k, _)| k);
+        let most = if self.map == CacheMap::Lru {
+            (blocks.count() as u64).div_ceil(u64::from(self.lines))
+        } else {
+            let mut per_line = vec![0u64; self.lines as usize];
+            for k in blocks {
+                per_line[cache_line(self.map, self.ranks, self.lines, k) as usize] += 1;
+            }
+            per_line.into_iter().max().unwrap_or(0)
+        };
+        most.saturating_sub(1).min(u64::from(u32::MAX)) as u32
+    }
+
     /// The block line `line` holds, if any.
     pub fn tag(&self, line: u32) -> Option<u32> {
         let t = self.tags[line as usize];
@@ -353,6 +376,47 @@ mod tests {
         assert!(plan.faults.iter().all(|f| f.waiting == 3 && f.owner == 1));
         assert_eq!(plan.rows, vec![(3, 5)]);
         assert_eq!(p.tag(0), Some(3));
+    }
+
+    #[test]
+    fn the_fault_round_bound_counts_the_fullest_line_or_every_line() {
+        // Rank 0 of 2, 3 lines: blocks 1, 3, 5, 7, 9, 11, 13 are borrowed. Demarle puts k in
+        // line k mod 3: 3, 9 in line 0; 1, 7, 13 in line 1; 5, 11 in line 2. Ize numbers the
+        // borrowed blocks 0.. (block 2i + 1 is the i-th) before the mod: 1, 7, 13 (i = 0, 3, 6)
+        // in line 0; 3, 9 in 1; 5, 11 in 2.
+        let mut looked_up = vec![false; 16];
+        for k in [1, 3, 5, 7, 9, 11, 13] {
+            looked_up[k] = true;
+        }
+        for map in [CacheMap::Demarle, CacheMap::Ize] {
+            // Three blocks in one line: two loads at least, one a round.
+            assert_eq!(
+                policy(2, 0, map, 3, 16).fault_round_bound(&looked_up),
+                2,
+                "{map:?}"
+            );
+        }
+        // Lru: 7 blocks through 3 lines, at most 3 there at the start, 3 loads a round.
+        assert_eq!(
+            policy(2, 0, CacheMap::Lru, 3, 16).fault_round_bound(&looked_up),
+            2
+        );
+        assert_eq!(
+            policy(2, 0, CacheMap::Lru, 7, 16).fault_round_bound(&looked_up),
+            0
+        );
+        // One block a line: it may be there already.
+        let mut one = vec![false; 16];
+        one[3] = true;
+        one[5] = true;
+        assert_eq!(
+            policy(2, 0, CacheMap::Demarle, 3, 16).fault_round_bound(&one),
+            0
+        );
+        assert_eq!(
+            policy(2, 0, CacheMap::Demarle, 3, 16).fault_round_bound(&[]),
+            0
+        );
     }
 
     #[test]

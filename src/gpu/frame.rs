@@ -34,6 +34,9 @@ pub struct FrameStats {
     /// Distinct borrowed blocks the frame's rays looked up (resident in the cache or fetched):
     /// `fetched_blocks` over it is how often the frame fetched each block it needed.
     pub distinct_blocks: u64,
+    /// The fewest fault rounds any schedule could take to bring those blocks through the
+    /// cache (`CachePolicy::fault_round_bound`): `fault_rounds` over it is the scheduler's room.
+    pub fault_round_bound: u32,
     pub fetch_seconds: f64,
     pub upload_seconds: f64,
     /// Rounds that had faults.

@@ -646,6 +646,7 @@ impl<'g> Tracer<'g> {
         stats.seconds = self.frame_start.elapsed().as_secs_f64();
         if let Some(dc) = &self.dc {
             stats.distinct_blocks = dc.looked_up.iter().filter(|&&m| m).count() as u64;
+            stats.fault_round_bound = dc.policy.fault_round_bound(&dc.looked_up);
             let lines = self
                 .dc
                 .as_ref()

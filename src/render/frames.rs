@@ -236,6 +236,7 @@ pub fn summarize(
         s.fetched_blocks = stats.fetched_blocks;
         s.fetched_bytes = stats.fetched_bytes;
         s.distinct_blocks = stats.distinct_blocks;
+        s.fault_round_bound = stats.fault_round_bound;
         s.fetch_ms = stats.fetch_seconds * 1e3;
         s.upload_ms = stats.upload_seconds * 1e3;
     }
@@ -257,6 +258,7 @@ mod tests {
             fetched_blocks: 9,
             fetched_bytes: 9 * 8192,
             distinct_blocks: 6,
+            fault_round_bound: 2,
             seconds: 0.25,
             trace_seconds: 0.125,
             shade_seconds: 0.0625,
@@ -314,6 +316,7 @@ mod tests {
             fetched_blocks: 9,
             fetched_bytes: 9 * 8192,
             distinct_blocks: 6,
+            fault_round_bound: 2,
             frame_ms: 250.0,
             trace_ms: 125.0,
             fetch_ms: 31.25,

@@ -148,6 +148,10 @@ pub struct FrameSummary {
     /// Distinct borrowed blocks the frame looked up (absent in traces of older builds).
     #[serde(default)]
     pub distinct_blocks: u64,
+    /// The fewest fault rounds any schedule could have taken for those blocks through this
+    /// cache (absent in traces of older builds).
+    #[serde(default)]
+    pub fault_round_bound: u32,
     pub frame_ms: f64,
     pub trace_ms: f64,
     pub fetch_ms: f64,

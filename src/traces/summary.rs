@@ -12,6 +12,8 @@ pub struct Row {
     pub role: String,
     pub rounds: u64,
     pub fault_rounds: u64,
+    /// The fewest fault rounds the cache allowed the frame's blocks (`FrameSummary`).
+    pub fault_round_bound: u64,
     pub faults: u64,
     pub lookups: u64,
     pub hits: u64,
@@ -38,6 +40,7 @@ impl Row {
             role: s.role.clone(),
             rounds: u64::from(s.rounds),
             fault_rounds: u64::from(s.fault_rounds),
+            fault_round_bound: u64::from(s.fault_round_bound),
             faults: f.faults(),
             lookups: s.lookups,
             hits: s.hits,
@@ -57,6 +60,7 @@ impl Row {
     fn add(&mut self, r: &Row) {
         self.rounds += r.rounds;
         self.fault_rounds += r.fault_rounds;
+        self.fault_round_bound += r.fault_round_bound;
         self.faults += r.faults;
         self.lookups += r.lookups;
         self.hits += r.hits;
@@ -125,12 +129,13 @@ impl RunSummary {
         );
         let _ = writeln!(
             s,
-            "{:>5} {:>4} {:<16} {:>6} {:>6} {:>7} {:>6} {:>7} {:>9} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>5}",
+            "{:>5} {:>4} {:<16} {:>6} {:>6} {:>6} {:>7} {:>6} {:>7} {:>9} {:>9} {:>8} {:>8} {:>8} {:>8} {:>8} {:>5}",
             "frame",
             "rank",
             "role",
             "rounds",
             "fault",
+            "bound",
             "faults",
             "hit%",
             "blocks",
@@ -156,10 +161,11 @@ impl RunSummary {
             };
             let _ = writeln!(
                 s,
-                "{frame:>5} {rank:>4} {:<16} {:>6} {:>6} {:>7} {:>6.2} {:>7} {:>9.2} {:>9.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>5}",
+                "{frame:>5} {rank:>4} {:<16} {:>6} {:>6} {:>6} {:>7} {:>6.2} {:>7} {:>9.2} {:>9.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>5}",
                 r.role,
                 r.rounds,
                 r.fault_rounds,
+                r.fault_round_bound,
                 r.faults,
                 100.0 * r.hit_rate,
                 r.fetched_blocks,

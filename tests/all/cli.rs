@@ -489,7 +489,12 @@ fn dc_bench_reports_ratios_over_its_repeats() {
             f(r, "fault_rounds_per_frame") > 0.0,
             "a 1/8 cache faults: {r}"
         );
+        assert!(
+            f(r, "fault_round_bound_per_frame") <= f(r, "fault_rounds_per_frame"),
+            "no schedule beats the bound: {r}"
+        );
     }
+    assert_eq!(f(&rows[0], "fault_round_bound_per_frame"), 0.0);
 }
 
 /// The switches for measurements are options of the benches, not of `dcrt render`: the render

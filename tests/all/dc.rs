@@ -113,6 +113,17 @@ fn sweep(g: Generator) {
                 let cache = t.cache().map(|(_, lines, map)| (lines, map));
                 trace.summary = summarize(&stats, cache, 0, Role::one_process(&t));
                 let s = &trace.summary;
+                // No schedule takes fewer fault rounds than the cache allows the frame's blocks;
+                // through one line, every block but one already there needs a round of its own.
+                assert_eq!(s.fault_round_bound, stats.fault_round_bound, "{what}");
+                assert!(
+                    stats.fault_rounds >= stats.fault_round_bound,
+                    "{what}: {stats:?}"
+                );
+                if size == "1line" {
+                    let all_but_one = stats.distinct_blocks.saturating_sub(1);
+                    assert_eq!(u64::from(stats.fault_round_bound), all_but_one, "{what}");
+                }
                 // A fetched block was missed first and found in its line afterwards.
                 if s.fetched_blocks > 0 {
                     assert!(s.misses > 0 && s.hits > 0, "{what}: {s:?}");

@@ -90,6 +90,7 @@ fn summary_totals_are_the_frame_records() {
     for k in [
         "rounds",
         "fault_rounds",
+        "fault_round_bound",
         "lookups",
         "hits",
         "fetched_blocks",
@@ -107,6 +108,16 @@ fn summary_totals_are_the_frame_records() {
         assert!((t[k].as_f64().unwrap() - want).abs() < 1e-9, "{k}");
     }
     assert_eq!(t["faults"].as_u64().unwrap(), faults);
+    // Four lines for more of the frames' blocks: a bound above 0 that no frame beat.
+    let bound = t["fault_round_bound"].as_u64().unwrap();
+    assert!(
+        bound > 0 && bound <= t["fault_rounds"].as_u64().unwrap(),
+        "{t}"
+    );
+    for f in &frames {
+        let (bound, rounds) = (f["fault_round_bound"].as_u64(), f["fault_rounds"].as_u64());
+        assert!(bound.unwrap() <= rounds.unwrap(), "{f}");
+    }
     let (hits, lookups) = (t["hits"].as_f64().unwrap(), t["lookups"].as_f64().unwrap());
     assert_eq!(t["hit_rate"].as_f64().unwrap(), hits / lookups);
     // The table prints the same totals.

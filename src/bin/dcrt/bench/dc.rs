@@ -104,6 +104,9 @@ struct DcRow {
     fetches_per_distinct_block: f64,
     rounds_per_frame: f64,
     fault_rounds_per_frame: f64,
+    /// The fewest fault rounds any schedule could take for each warm frame's blocks through
+    /// this cache (`CachePolicy::fault_round_bound`), mean over the frames.
+    fault_round_bound_per_frame: f64,
     misses_per_fault_round: f64,
     hit_rate: f64,
     nodes_per_block_entry: f64,
@@ -290,6 +293,7 @@ fn run(
             },
             rounds_per_frame: sum(&|s| f64::from(s.rounds)) / n,
             fault_rounds_per_frame: fault_rounds / n,
+            fault_round_bound_per_frame: sum(&|s| f64::from(s.fault_round_bound)) / n,
             misses_per_fault_round: if fault_rounds > 0.0 {
                 sum(&|s| s.misses as f64) / fault_rounds
             } else {
@@ -412,6 +416,7 @@ fn print(report: &DcReport) {
         ("fetch/d", 7),
         ("rounds", 7),
         ("faultR", 7),
+        ("bound", 6),
         ("miss/rnd", 9),
         ("hit", 6),
         ("nod/blk", 7),
@@ -454,6 +459,7 @@ fn print(report: &DcReport) {
             format!("{:.2}", r.fetches_per_distinct_block),
             format!("{:.1}", r.rounds_per_frame),
             format!("{:.1}", r.fault_rounds_per_frame),
+            format!("{:.1}", r.fault_round_bound_per_frame),
             format!("{:.0}", r.misses_per_fault_round),
             format!("{:.3}", r.hit_rate),
             format!("{:.2}", r.nodes_per_block_entry),
