@@ -394,8 +394,9 @@ fn frames_of(a: &RenderArgs, sw: &Switches, format: Format) -> Result<()> {
                     stats.max_live_rounds,
                     if dc.is_some() {
                         format!(
-                            ", {} fault rounds, hit rate {:.3}, {} blocks fetched",
+                            ", {} fault rounds (at least {}), hit rate {:.3}, {} blocks fetched",
                             stats.fault_rounds,
+                            stats.fault_round_bound,
                             hit_rate(stats),
                             stats.fetched_blocks
                         )
