@@ -67,6 +67,16 @@ fn prepared_model_renders_the_same_through_the_cache() {
     let fetched: u64 = rounds.iter().map(|r| n(r, "fetched_blocks")).sum();
     assert_eq!(fetched, n(frame, "fetched_blocks"));
     assert_eq!(rounds.len() as u64, n(frame, "fault_rounds"));
+    // The line per frame gives the fault rounds and their bound as the trace records them;
+    // through one line every block but one needs a round of its own.
+    let bound = n(frame, "fault_round_bound");
+    assert_eq!(bound, n(frame, "distinct_blocks") - 1, "{frame}");
+    assert!(bound > 0, "{frame}");
+    let said = format!(
+        "{} fault rounds (at least {bound})",
+        n(frame, "fault_rounds")
+    );
+    assert!(log.contains(&said), "{said}: {log}");
 }
 
 #[test]
