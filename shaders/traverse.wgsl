@@ -157,25 +157,26 @@ fn reach(t: f32) -> f32 {
     return t * (1.0 + 1.0 / 4096.0);
 }
 
-// The closest hit found in a round: where its triangle is and its barycentrics.
-struct Closest {
-    found: bool,
-    row: u32,
-    slot: u32,
-    b: vec3<f32>,
+// The row holding block k, which the loop found there (rows do not change during a dispatch):
+// `lookup` without its counts and marks.
+fn row_of(k: u32) -> u32 {
+    if !DC {
+        return k;
+    }
+    return block_row(k);
 }
 
-// Takes hit th on triangle `index` (block row, slot) as the ray's closest; true when the ray is
-// done with it (shadow and occlusion rays need any hit, not the closest).
-fn take_hit(r: ptr<function, RayState>, c: ptr<function, Closest>, th: TriHit, index: u32,
-            row: u32, slot: u32) -> bool {
+// Takes hit th on triangle `index` as the ray's closest, its barycentrics into `b`; true when
+// the ray is done with it (shadow and occlusion rays need any hit, not the closest).
+fn take_hit(r: ptr<function, RayState>, b: ptr<function, vec3<f32>>, th: TriHit,
+            index: u32) -> bool {
     // intersect returns hits up to t inclusive: an equally near one wins by the lower index.
     if !(th.t < (*r).t || ((*r).hit != NONE && index < (*r).hit)) {
         return false;
     }
     (*r).t = th.t;
     (*r).hit = index;
-    *c = Closest(true, row, slot, th.b);
+    *b = th.b;
     if ((*r).flags & ANY_HIT) != 0u {
         (*r).status = DONE;
         (*r).sp = 0u;
@@ -306,11 +307,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var entries = 0u;
         var last_block = NONE;
         var tri_entries = 0u;
-        // The closest hit found in this round: where its triangle is and its barycentrics. Its
-        // normal, point and error are computed once, after the loop: block rows do not change
-        // during a dispatch, and a CPU driver runs a branch's code in every iteration however
-        // few lanes take it.
-        var closest = Closest(false, 0u, 0u, vec3(0.0));
+        // The barycentrics of the closest hit found in this round. The triangle is r.hit (its
+        // block and slot follow from the index), and a hit was found when r.hit moved: fewer
+        // values live across the loop leave a CPU driver fewer registers to spill. Its normal,
+        // point and error are computed once, after the loop: block rows do not change during a
+        // dispatch, and a CPU driver runs a branch's code in every iteration however few lanes
+        // take it.
+        var closest_b = vec3(0.0);
+        let hit_before = r.hit;
         var last_tri_block = NONE;
         // What is visited next, as a stack entry holds it (RayState.cur_index, cur_count), and
         // its entry distance's bits (0, never culled, for an entry resumed from RayState).
@@ -326,10 +330,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         var fault_block = NONE;
         // Which set-aside slots this round filled: their blocks are requested after the loop.
         var set_aside_now = 0u;
-        var pending_row = 0u;
         // The row of the last triangle block the ray used (keep_line).
         var tri_row = NONE;
-        var pending_slot = 0u;
         var pending_index = 0u;
         // The top of the stack in registers: top[0] the top entry, `held` of them in use, the
         // rest in `stacks` below r.sp. A CPU driver runs a buffer access as a loop over the lanes
@@ -478,12 +480,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                     cur = select(vec2(cur.x + 1u, cur.y - 1u), vec2(0u, NONE), cur.y == 1u);
                     if th.t == UNRESOLVED_T {
                         pending = true;
-                        pending_row = row;
-                        pending_slot = tl.y;
                         pending_index = index;
                         break;
                     }
-                    if th.t > 0.0 && take_hit(&r, &closest, th, index, row, tl.y) {
+                    if th.t > 0.0 && take_hit(&r, &closest_b, th, index) {
                         cur.y = NONE;
                         held = 0u;
                         break;
@@ -532,8 +532,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
                 break;
             }
             pending = false;
-            let th = resolve_hit(tri_at(pending_row, pending_slot), org, sh, r.t, camera);
-            if th.t > 0.0 && take_hit(&r, &closest, th, pending_index, pending_row, pending_slot) {
+            let pl = tri_loc(pending_index);
+            let th = resolve_hit(tri_at(row_of(pl.x), pl.y), org, sh, r.t, camera);
+            if th.t > 0.0 && take_hit(&r, &closest_b, th, pending_index) {
                 cur.y = NONE;
                 held = 0u;
                 break;
@@ -558,10 +559,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             keep_line(tri_row);
         }
-        if closest.found {
-            let hit_row = closest.row;
-            let hit_slot = closest.slot;
-            let hit_b = closest.b;
+        let found = r.hit != hit_before;
+        if found {
+            let hl = tri_loc(r.hit);
+            let hit_row = row_of(hl.x);
+            let hit_slot = hl.y;
+            let hit_b = closest_b;
             let tri = tri_at(hit_row, hit_slot);
             let n = unit_normal(tri);
             r.nx = n.x;
@@ -593,7 +596,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             rays[ray_index].g[1].w = w.g[1].w;
             rays[ray_index].g[2] = w.g[2];
             rays[ray_index].g[3] = w.g[3];
-            if closest.found {
+            if found {
                 rays[ray_index].g[4] = w.g[4];
                 rays[ray_index].g[5] = w.g[5];
                 rays[ray_index].g[6] = w.g[6];
@@ -603,7 +606,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         counts = vec4(iters, tests, visits, entries);
         // Suspended in bits 0-9, overflowed in 10-19, closest hits in 20-29 (a subgroup sums at
         // most 128 of each): one sum instead of three.
-        let closest_hit = closest.found && (r.flags & ANY_HIT) == 0u;
+        let closest_hit = found && (r.flags & ANY_HIT) == 0u;
         let ended = u32(suspended) | (u32(r.status == OVERFLOW) << 10u) | (u32(closest_hit) << 20u);
         more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
     }
