@@ -1,6 +1,7 @@
-// A wave of secondary rays whose paths have thinned out (shared/spawn.wgsl): each slot's ray
-// stored, and the live ones appended to list 0, compacted for the wave's first indirect round.
-// A wave in which nearly every path is alive is made by its first traversal round instead.
+// A wave of secondary rays whose paths have thinned out (shared/spawn.wgsl): the slots of the
+// live rays listed in list 0, compacted for the wave's first round (traverse, FIRST_LISTED),
+// which makes those rays from their paths. A wave in which nearly every path is alive is made by
+// its first round over every slot instead (FIRST_SPAWN).
 #import params
 #import ray
 #import shading
@@ -17,14 +18,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     var live = false;
     if j < params.batch_rays * fan {
         let ik = wave_ray(j, fan);
-        // A dead path's slot gets only the group with its status (OUTSIDE: the albedo kernel
-        // skips it; gather skips dead paths), which makes a wave of few live paths cheap (a CPU
-        // driver loads and stores lane by lane).
-        if paths[ik.x].alive != 0u {
-            let r = spawn_ray(paths[ik.x], ik.y);
-            live = r.status == LIVE;
-            rays[j] = ray_groups(r);
-        } else {
+        // Only a slot's status is stored here, and only when its ray is not traced (OUTSIDE: the
+        // albedo kernel and gather skip it): the listed rays' state is the first round's to store,
+        // so a CPU driver, which stores lane by lane, moves one group a dead slot and none a live
+        // one. Of spawn_ray only the status is used: the compiler drops the rest.
+        live = spawn_ray(paths[ik.x], ik.y).status == LIVE;
+        if !live {
             rays[j].g[2] = vec4(0u, OUTSIDE, 0u, 0u);
         }
     }

@@ -8,9 +8,10 @@
 // order in which faults let a ray visit its subtrees never changes the image.
 //
 // A batch of primary rays, and each wave of secondary rays, starts with a round built with
-// FIRST: it makes each slot's ray in registers (camera_ray, spawn_ray) instead of loading
-// what a kernel of its own would have stored, and in cast mode without colour by data it writes
-// the pixel of every camera ray that ends in it.
+// FIRST: it makes each ray in registers (camera_ray, spawn_ray) instead of loading what a kernel
+// of its own would have stored, and in cast mode without colour by data it writes the pixel of
+// every camera ray that ends in it. A wave whose paths have thinned out (FIRST_LISTED) makes
+// only the rays the spawn kernel listed as live.
 #import params
 #import ray
 #import blocks
@@ -37,7 +38,8 @@ struct Stats {
     tri_tests: atomic<u32>,
     overflows: atomic<u32>,
     suspended: atomic<u32>,
-    // Rays that entered traversal in the first round (FIRST).
+    // Rays that entered traversal in the first round (FIRST_CAMERA, FIRST_SPAWN; a wave the
+    // spawn kernel listed copies its list's count here).
     started: atomic<u32>,
     hits: atomic<u32>,
     misses: atomic<u32>,
@@ -60,15 +62,23 @@ struct Stats {
 @group(1) @binding(6) var<storage, read_write> stats: Stats;
 // FIRST_CAMERA with first_round_shades(): the pixels of the rays that end in the round.
 @group(1) @binding(7) var<storage, read_write> pixels: array<Pixel>;
-// FIRST_SPAWN: the paths its rays leave.
+// FIRST_SPAWN, FIRST_LISTED: the paths their rays leave.
 @group(1) @binding(8) var<storage, read> paths: array<Path>;
 
-// The kernel of a first round (see the top of this file): one invocation per ray slot (not per
-// live ray), each making and tracing the ray of its slot: FIRST_CAMERA for a batch's primary
-// rays, FIRST_SPAWN for a wave's secondary rays (`shading.fan` slots a pixel slot).
+// The kernel of a first round (see the top of this file). FIRST_CAMERA and FIRST_SPAWN run one
+// invocation per ray slot (not per live ray), each making and tracing the ray of its slot: a
+// batch's primary rays, or a wave's secondary rays (`shading.fan` slots a pixel slot).
+// FIRST_LISTED runs one per live ray of the list the spawn kernel made, and makes its ray
+// from its path as FIRST_SPAWN does: no kernel stores a wave's rays for this round to load.
 const FIRST_CAMERA: u32 = 1u;
 const FIRST_SPAWN: u32 = 2u;
+const FIRST_LISTED: u32 = 3u;
 override FIRST: u32 = 0u;
+
+// Whether the kernel runs an invocation per ray slot (FIRST_CAMERA, FIRST_SPAWN).
+fn per_slot() -> bool {
+    return FIRST == FIRST_CAMERA || FIRST == FIRST_SPAWN;
+}
 
 // How many strands of the batch's tiles the first round's workgroups interleave (spread_slot).
 const SPREAD: u32 = 16u;
@@ -239,12 +249,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     if FIRST == FIRST_SPAWN {
         slots *= shading.fan;
     }
-    let slot = FIRST != 0u && gid.x < slots;
+    let slot = per_slot() && gid.x < slots;
     // Whether the first round stores its slot's whole state: a dead path's slots (FIRST_SPAWN)
     // get only the group with their status, OUTSIDE (as the spawn kernel's).
     var whole = slot;
     var entered = 0u;
-    if FIRST != 0u {
+    // FIRST_LISTED: a listed ray, which the round stores whole.
+    var listed = false;
+    if per_slot() {
         if slot {
             ray_index = spread_slot(gid.x, slots);
             if FIRST == FIRST_SPAWN {
@@ -258,6 +270,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
             }
             go = r.status == LIVE;
             entered = u32(go);
+        }
+    } else if FIRST == FIRST_LISTED {
+        if gid.x < counter_in[0] {
+            ray_index = live_in[gid.x];
+            let ik = wave_ray(ray_index, shading.fan);
+            // Listed because spawn_ray made it LIVE (`Stats::started` is the list's count).
+            r = spawn_ray(paths[ik.x], ik.y);
+            go = true;
+            listed = true;
         }
     } else if gid.x < counter_in[0] {
         ray_index = live_in[gid.x];
@@ -611,8 +632,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         more_counts = vec4(tri_entries, ended, dc_hits, dc_misses);
     }
     // The first round's slot, traced or not: its pixel when the ray has ended and the round
-    // shades, else its whole state (no earlier kernel stored any).
-    if slot {
+    // shades, else its whole state (no earlier kernel stored any); a listed ray's whole state.
+    if listed {
+        rays[ray_index] = ray_groups(r);
+    } else if slot {
         if !whole {
             rays[ray_index].g[2] = ray_groups(r).g[2];
         } else if FIRST == FIRST_CAMERA && first_round_shades() && r.status != LIVE {
@@ -638,11 +661,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         sub_steps = subgroupMax(counts.x);
     }
     var sub_started = 0u;
-    if FIRST != 0u {
+    if per_slot() {
         sub_started = subgroupAdd(entered);
     }
     if sgi == 0u {
-        if FIRST != 0u {
+        if per_slot() {
             atomicAdd(&stats.started, sub_started);
         }
         atomicAdd(&stats.steps, sub_counts.x);

@@ -225,8 +225,11 @@ pub struct Kernels {
     /// `traverse` built for a wave's first round (`FIRST` 2): it makes the secondary rays from
     /// the paths. Modes without secondary rays have none.
     pub traverse_spawn: Option<Kernel>,
-    /// A path's later waves (`rounds::Gen::Spawned`).
+    /// A path's later waves (`rounds::Gen::Spawned`): lists the live rays' slots.
     pub spawn: Option<Kernel>,
+    /// `traverse` built for the first round of a wave `spawn` listed (`FIRST` 3): it makes the
+    /// listed rays from their paths.
+    pub traverse_listed: Option<Kernel>,
     pub traverse: Kernel,
     /// With a cache, `traverse` built without set-aside slots (`DEFER_SLOTS` 0), for frames that set
     /// nothing aside (`Params::dc_defer` 0): a CPU driver runs the set-aside code of a loop pass
@@ -262,6 +265,7 @@ impl Kernels {
             traverse_first: first(1),
             traverse_spawn: waves.then(|| first(2)),
             spawn: waves.then(|| k("spawn")),
+            traverse_listed: waves.then(|| first(3)),
             traverse: k("traverse"),
             traverse_suspending: suspending,
             args: k("args"),

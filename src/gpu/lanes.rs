@@ -17,6 +17,8 @@ pub(super) struct BoundKernels {
     pub traverse_first: Bound,
     pub traverse_spawn: Option<Bound>,
     pub spawn: Option<Bound>,
+    /// Reads list 0, which `spawn` fills; appends to list 1.
+    pub traverse_listed: Option<Bound>,
     /// Indexed by the live list the round reads.
     pub traverse: [Bound; 2],
     pub traverse_suspending: Option<[Bound; 2]>,
@@ -170,6 +172,8 @@ impl Tracer<'_> {
             shade: k.shade.bind(gpu, with(fill)),
             traverse_spawn: k.traverse_spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
             spawn: k.spawn.as_ref().map(|s| s.bind(gpu, with(fill))),
+            traverse_listed: (k.traverse_listed.as_ref())
+                .map(|t| t.bind(gpu, with(Lists { input: 0 }))),
             gather: k.gather.as_ref().map(|g| g.bind(gpu, with(fill))),
             albedo: k.albedo.as_ref().map(|a| a.bind(gpu, with(fill))),
         }
@@ -203,6 +207,7 @@ impl BoundKernels {
             shade: Bound::empty(),
             traverse_spawn: None,
             spawn: None,
+            traverse_listed: None,
             gather: None,
             albedo: None,
         }

@@ -2,7 +2,8 @@
 //! `traverse` (each live ray runs at most `step_budget` loop iterations, then saves its state) and
 //! `args` (the count of rays still live becomes the next round's indirect dispatch). A batch of
 //! primary rays starts with `traverse_first`, which makes the camera rays itself, and a wave of
-//! secondary rays with `traverse_spawn`, which makes them from the paths. With a
+//! secondary rays with `traverse_spawn`, which makes them from the paths (or, for a wave whose
+//! live rays `spawn` listed, `traverse_listed`, which makes those). With a
 //! distributed cache, every round's faults are read back and served (`dc::policy` decides,
 //! the block source fetches, the store and the row table are updated) before the next round;
 //! without one, several rounds go in one submission.
@@ -35,8 +36,9 @@ pub(super) enum Gen {
     /// A wave of `fan` secondary rays a pixel slot, made by the first round: a wave in which
     /// nearly every path is alive (ambient occlusion, shadows, a path's first bounce).
     Secondary { fan: u32 },
-    /// A wave made by the `spawn` kernel, which compacts the live rays: a path's later waves,
-    /// whose dead paths are scattered through the slots (docs/ARCHITECTURE.md, The round loop).
+    /// A wave whose live rays the `spawn` kernel lists, compacted, and its first round makes: a
+    /// path's later waves, whose dead paths are scattered through the slots
+    /// (docs/ARCHITECTURE.md, The round loop).
     Spawned { fan: u32 },
 }
 
@@ -48,15 +50,14 @@ impl Tracer<'_> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         self.clear_faults(&mut enc);
         let cur = self.record_start(&mut enc, 0, gen_);
-        let opening = (!matches!(gen_, Gen::Spawned { .. })).then_some(gen_);
-        self.run_rounds(enc, cur, opening, stats)
+        self.run_rounds(enc, cur, Some(gen_), stats)
     }
 
     /// Starts a batch in lane `l`: writes `Params` into its buffer and clears its counters and
     /// stats; for a spawned wave, records `spawn` into list 0, `args` on counter 0 and the copy
-    /// of the spawned count into `Stats::started`. Returns the list the first round reads (a
-    /// round that makes its rays reads none, and leaves its live rays in list 0, the list after
-    /// 1).
+    /// of the listed count into `Stats::started`. Returns the list the first round reads (a
+    /// round that makes its rays in every slot reads none, and leaves its live rays in list 0,
+    /// the list after 1).
     pub(super) fn record_start(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -86,7 +87,7 @@ impl Tracer<'_> {
     }
 
     /// Records one round of lane `l` (its rays in list `cur`; with `opening`, a first round,
-    /// which makes them) and the copies of the new live count and the stats into the lane's
+    /// which makes them, in every slot or, for a spawned wave, those `cur` lists) and the copies of the new live count and the stats into the lane's
     /// read-back; timestamps as `stamps` says. Returns the list the next round reads.
     pub(super) fn record_round(
         &self,
@@ -101,6 +102,7 @@ impl Tracer<'_> {
         let stamps = self.stamps(first, false);
         let rays = self.params.batch_rays;
         let spawn = (&k.traverse_spawn, &bound.traverse_spawn);
+        let listed = (&k.traverse_listed, &bound.traverse_listed);
         if let Some(Gen::Primary) = opening {
             let slots = Dispatch::Over(rays);
             k.traverse_first
@@ -109,6 +111,10 @@ impl Tracer<'_> {
             enc.copy_buffer_to_buffer(&b.counters[o], 0, &b.readback, at, 4);
         } else if let (Some(Gen::Secondary { fan }), (Some(t), Some(tb))) = (opening, spawn) {
             t.dispatch(enc, tb, Dispatch::Over(rays * fan), stamps);
+        } else if let (Some(Gen::Spawned { .. }), (Some(t), Some(tb))) = (opening, listed) {
+            // Bound to read list 0, where `spawn` lists the wave (`record_start`).
+            debug_assert_eq!(cur, 0, "a spawned wave's first round reads list 0");
+            t.dispatch(enc, tb, Dispatch::Indirect(&b.counters[cur]), stamps);
         } else {
             let ind = Dispatch::Indirect(&b.counters[cur]);
             // A frame that sets nothing aside runs the kernel without the set-aside code.
