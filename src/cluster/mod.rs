@@ -8,7 +8,7 @@
 //! `render_rank` or `coordinator` (`balancer` and `display`), or in a live view `live` at the
 //! display. `protocol` holds the messages,
 //! `mailbox` sends and waits for them, `liveness` tells a working rank from a stopped one, `schedule` decides the tiles, `pixels` packs and
-//! assembles them, `rma` (the only unsafe code) reads borrowed blocks.
+//! assembles them, `rma` (the unsafe MPI calls) reads borrowed blocks.
 
 pub mod pixels;
 pub mod protocol;

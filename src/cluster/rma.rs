@@ -1,4 +1,5 @@
-//! One-sided MPI over `mpi::ffi`: the only unsafe code in dcrt. rsmpi 0.8 has no safe RMA API, so
+//! One-sided MPI over `mpi::ffi`: all of dcrt's unsafe code but one call
+//! (`gpu::trusted`). rsmpi 0.8 has no safe RMA API, so
 //! this module wraps the few window calls the distributed cache needs (chapter 5.3: a render rank
 //! reads a borrowed block straight out of its owner's memory with a passive `MPI_Get`) and MPI
 //! progress polling for ranks that wait on their GPU.

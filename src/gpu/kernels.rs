@@ -117,12 +117,7 @@ impl Kernel {
                 })
             })
             .collect();
-        let module = gpu
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(info.source.into()),
-            });
+        let module = super::trusted::shader_module(&gpu.device, name, info.source);
         let refs: Vec<Option<&wgpu::BindGroupLayout>> =
             layouts.iter().map(Option::as_ref).collect();
         let layout = gpu

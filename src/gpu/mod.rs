@@ -29,6 +29,7 @@ pub mod shade_params;
 pub mod shaders;
 mod store;
 pub mod tracer;
+pub mod trusted;
 
 use crate::error::{Error, Result};
 use std::sync::{Arc, Mutex};
