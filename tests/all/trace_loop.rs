@@ -2,10 +2,12 @@
 //! is ever truncated), every ray ends done, and a view of nothing is all misses.
 
 use crate::common::*;
+use dcrt::dc::{CacheMap, CacheSize};
 use dcrt::gpu::frame::FrameStats;
 use dcrt::gpu::layout::status;
 use dcrt::gpu::shaders::Store;
 use dcrt::gpu::tracer::{MAX_STEP_BUDGET, Settings};
+use dcrt::render::DcOptions;
 use dcrt::scene::generate::Generator;
 use dcrt::scene::{Camera, Model, Scene};
 use dcrt::shading::{Mode, Shading};
@@ -139,6 +141,61 @@ fn a_wave_made_by_its_first_round_equals_a_spawned_one() {
                 s.secondary_rays, stats.secondary_rays,
                 "{what}: secondary rays"
             );
+        }
+    }
+}
+
+/// A path's later waves made from `spawn`'s list (its first round makes the listed rays) against
+/// waves made in every slot, through a 1/8 cache and with a budget of a few steps: listed rays
+/// that suspend at a fault or run out of steps in their first round resume from the state that
+/// round stored, and give the same bits as the replicated frame.
+#[test]
+fn spawned_waves_resume_through_the_cache_to_the_same_bits() {
+    let gpu = gpu();
+    let (model, camera) = rm();
+    let prepared = prepare(model);
+    let shading = Shading {
+        mode: Mode::Path,
+        spp: 1,
+        max_depth: 3,
+        ..Shading::default()
+    };
+    let basis = camera.basis(32, 32);
+    let frame = |spawned_waves_from, step_budget, cached: bool| {
+        let s = Settings {
+            shading,
+            spawned_waves_from,
+            step_budget,
+            ..Settings::default()
+        };
+        let mut t = if cached {
+            let o = DcOptions {
+                ranks: 4,
+                rank: 1,
+                cache: CacheSize::parse("1/8").unwrap(),
+                map: CacheMap::Lru,
+                replicate: Default::default(),
+            };
+            prepared.tracer_dc(&gpu, s, &o).unwrap()
+        } else {
+            prepared.tracer(&gpu, s).unwrap()
+        };
+        t.render(&basis, [0.1, 0.2, 0.3]).unwrap()
+    };
+    let (every_slot, rs) = frame(u32::MAX, Settings::default().step_budget, false);
+    assert!(rs.secondary_rays > 0, "secondary rays");
+    for (from, budget, cached) in [(1, 6, false), (1, 4096, true), (0, 6, true)] {
+        let what = format!("waves spawned from {from}, budget {budget}, cached {cached}");
+        let (f, s) = frame(from, budget, cached);
+        assert_same_pixels(&every_slot, &f, &what);
+        assert_eq!(
+            s.secondary_rays, rs.secondary_rays,
+            "{what}: secondary rays"
+        );
+        if cached {
+            assert!(s.fault_rounds > 0, "{what}: the cache faulted");
+        } else {
+            assert!(s.max_live_rounds > 2, "{what}: rays resumed over rounds");
         }
     }
 }
